@@ -1,0 +1,24 @@
+"""airpuff_core: the physics of one air-puff run (Fung membrane cornea + MFPM aqueous humour).
+
+Public API::
+
+    from airpuff_core import RunParams, simulate
+    result = simulate(RunParams(E0=0.5, IOP=16, resolution="coarse"))
+    result.metrics            # P1, P2, CH, IOPg, IOPcc (mmHg), t_A1, t_A2, t_HC (ms), DA (mm), ...
+    result.to_dataset()       # CF-annotated xarray.Dataset (SPEC section 7)
+"""
+
+__version__ = "0.1.0"
+
+from .errors import SimulationError  # noqa: E402
+from .params import ParameterError, RunParams  # noqa: E402
+
+
+def simulate(params, progress=None):
+    """Run one coupled simulation; see :func:`airpuff_core.simulate.simulate`."""
+    from .simulate import simulate as _simulate
+
+    return _simulate(params, progress=progress)
+
+
+__all__ = ["RunParams", "ParameterError", "SimulationError", "simulate", "__version__"]
