@@ -1,0 +1,95 @@
+"""The fluid's discrete operators at one set of node positions (MFPM weights + Brookshaw Laplacian).
+
+``Operators.build(x, y)`` runs the cell-list search and factors every node's moment matrix once;
+the derivative of any field is then a dot product with stored weights.  Arrays are allocated once
+per run and reused, so a time step allocates nothing per particle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import SimulationError
+from .kernels.mfpm import brookshaw_laplacian, compute_weights, hyperviscous_term, near_nodes
+from .kernels.neighbours import build_neighbours
+
+MAX_NEIGHBOURS = 128
+COND_MAX = 1e8  # largest accepted 1-norm condition number of a scaled moment matrix
+
+
+class Operators:
+    """Neighbour table, MFPM weights and Brookshaw coefficients for one configuration."""
+
+    def __init__(self, h, area, kappa):
+        n = h.shape[0]
+        self.h = h
+        self.area = area
+        self.kappa = kappa
+        self.nbr = np.zeros((n, MAX_NEIGHBOURS), np.int64)
+        self.mirrored = np.zeros((n, MAX_NEIGHBOURS), np.int8)
+        self.count = np.zeros(n, np.int64)
+        self.weights = np.zeros((n, MAX_NEIGHBOURS, 5))
+        self.lap_b = np.zeros((n, MAX_NEIGHBOURS))
+        self.cond = np.zeros(n)
+        self.all_nodes = np.arange(n)
+
+    def build(self, x, y, time_ms=None, active=None):
+        """Search neighbours and factor every moment matrix at positions (x, y) [m].
+
+        With ``active`` (node indices) only those nodes' weights are recomputed, on the existing
+        neighbour table: used within one time step, when only the cornea has moved (a pair that
+        enters a support in between carries a Wendland weight of ~0; one that leaves, exactly 0).
+        """
+        if active is None:
+            status = build_neighbours(x, y, self.h, self.kappa, self.nbr, self.mirrored, self.count)
+            if status:
+                raise SimulationError(
+                    f"node {status - 1} has more than {MAX_NEIGHBOURS} neighbours"
+                    + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms,
+                    "neighbours")
+            active = self.all_nodes
+        status = compute_weights(x, y, self.h, self.area, self.kappa, self.nbr, self.mirrored,
+                                 self.count, COND_MAX, active, self.weights, self.lap_b, self.cond)
+        if status:
+            i = status - 1
+            raise SimulationError(
+                f"MFPM moment matrix of node {i} is ill-conditioned (condition {self.cond[i]:.3g} "
+                f"> {COND_MAX:.0e}, {self.count[i]} neighbours)"
+                + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms, "conditioning")
+        return self
+
+    def nodes_near(self, targets_mask):
+        """Indices of the nodes that are in ``targets_mask`` or have a neighbour in it."""
+        return near_nodes(targets_mask, self.nbr, self.count)
+
+    def args(self):
+        """(nbr, mirrored, count, weights) for the derivative kernels."""
+        return self.nbr, self.mirrored, self.count, self.weights
+
+    def laplacian(self, f, parity=1.0):
+        out = np.empty_like(f)
+        brookshaw_laplacian(f, parity, self.nbr, self.mirrored, self.count, self.lap_b, out)
+        return out
+
+    def hyperviscous(self, f, parity, scale, work1, work2, out):
+        hyperviscous_term(f, parity, self.nbr, self.mirrored, self.count, self.lap_b, scale,
+                          work1, work2, out)
+        return out
+
+    def hyperviscous_spectral_radius(self, scale, start=None, iterations=60):
+        """Largest |eigenvalue| of f -> scale * L^3 f by power iteration, and its eigenvector.
+
+        L has real non-positive eigenvalues, so this converges to the stiffest grid mode.  Nodes
+        that the flow pushes together raise it, so the solver re-runs a few iterations every step
+        from the previous eigenvector (``start``).
+        """
+        if start is None:
+            start = np.random.default_rng(0).standard_normal(self.h.shape[0])
+        f = start / np.linalg.norm(start)
+        w1, w2, out = np.empty_like(f), np.empty_like(f), np.empty_like(f)
+        lam = 0.0
+        for _ in range(iterations):
+            self.hyperviscous(f, 1.0, scale, w1, w2, out)
+            lam = np.linalg.norm(out)
+            f = out / lam
+        return lam, f

@@ -1,0 +1,279 @@
+"""Reference configuration of the anterior chamber: fluid nodes, their kinds, spacing and volumes.
+
+Meridian half-plane x >= 0 (x: distance from the axis, y: along the axis), origin at the centre of
+the corneal sphere, apex at (0, R).  Two chamber shapes (SPEC section 2):
+
+- ``sector``: r_post <= rho <= R, 0 <= phi <= alpha0 (the paper's spherical sector);
+- ``cap``: rho <= R above the plane y = R cos(alpha0) through the limbus.
+
+Two node layouts: ``isotropic`` rings of constant rho whose node count grows with rho (about equal
+spacing in both directions, the default) and the paper's ``polar`` lattice (n_rho x n_phi).  In both
+the outer ring rho = R is the cornea: its nodes are the membrane nodes, apex first.
+
+Each node gets a local spacing h (m), its area in the meridian plane (m^2) and its volume of
+revolution (m^3); areas and volumes come from a fine sampling of the domain (nearest node), scaled
+so that they add up to the exact area and volume of the chamber.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from .kernels.fluid import AXIS, CORNEA, INTERIOR, WALL
+
+# target fluid node counts (SPEC section 2) and the polar lattices (n_rho, n_phi)
+TARGET_NODES = {"coarse": 300, "paper": 1134, "fine": 4500}
+POLAR_LATTICE = {"coarse": (14, 21), "paper": (27, 42), "fine": (54, 84)}
+
+
+@dataclass
+class Chamber:
+    x: np.ndarray  # m
+    y: np.ndarray  # m
+    kind: np.ndarray  # int8: INTERIOR, AXIS, WALL, CORNEA
+    h: np.ndarray  # m, local node spacing
+    area: np.ndarray  # m^2, area in the meridian plane
+    volume: np.ndarray  # m^3, volume of revolution
+    cornea: np.ndarray  # indices of the cornea nodes, apex first
+    phi_cornea: np.ndarray  # rad, reference angle of each cornea node
+    geometry: str
+    layout: str
+    R: float
+    r_post: float
+    alpha0: float
+
+    @property
+    def n(self) -> int:
+        return self.x.shape[0]
+
+    def exact_area(self) -> float:
+        return exact_area(self.geometry, self.R, self.r_post, self.alpha0)
+
+    def exact_volume(self) -> float:
+        return exact_volume(self.geometry, self.R, self.r_post, self.alpha0)
+
+
+def exact_area(geometry, R, r_post, alpha0):
+    if geometry == "sector":
+        return 0.5 * alpha0 * (R * R - r_post * r_post)
+    return 0.5 * R * R * (alpha0 - math.sin(alpha0) * math.cos(alpha0))
+
+
+def exact_volume(geometry, R, r_post, alpha0):
+    if geometry == "sector":
+        return 2.0 * math.pi / 3.0 * (R ** 3 - r_post ** 3) * (1.0 - math.cos(alpha0))
+    H = R * (1.0 - math.cos(alpha0))
+    return math.pi * H * H * (3.0 * R - H) / 3.0
+
+
+def _ring_nodes(rho, phi_end, spacing, include_end=True):
+    n = max(1, int(round(rho * phi_end / spacing)))
+    phis = np.linspace(0.0, phi_end, n + 1)
+    return phis if include_end else phis[:-1]
+
+
+def _sector_isotropic(R, r_post, alpha0, n_rings):
+    dr = (R - r_post) / (n_rings - 1)
+    xs, ys, kinds = [], [], []
+    for i in range(n_rings):
+        rho = r_post + i * dr
+        phis = _ring_nodes(rho, alpha0, dr)
+        for j, ph in enumerate(phis):
+            if i == n_rings - 1:
+                k = CORNEA
+            elif i == 0 or j == len(phis) - 1:
+                k = WALL
+            elif j == 0:
+                k = AXIS
+            else:
+                k = INTERIOR
+            xs.append(rho * math.sin(ph))
+            ys.append(rho * math.cos(ph))
+            kinds.append(k)
+    h = np.full(len(xs), dr)
+    return np.array(xs), np.array(ys), np.array(kinds, np.int8), h
+
+
+def _sector_polar(R, r_post, alpha0, n_rho, n_phi):
+    dr = (R - r_post) / (n_rho - 1)
+    dphi = alpha0 / (n_phi - 1)
+    xs, ys, kinds, hs = [], [], [], []
+    for i in range(n_rho):
+        rho = r_post + i * dr
+        for j in range(n_phi):
+            ph = j * dphi
+            if i == n_rho - 1:
+                k = CORNEA
+            elif i == 0 or j == n_phi - 1:
+                k = WALL
+            elif j == 0:
+                k = AXIS
+            else:
+                k = INTERIOR
+            xs.append(rho * math.sin(ph))
+            ys.append(rho * math.cos(ph))
+            kinds.append(k)
+            hs.append(max(dr, rho * dphi))
+    return np.array(xs), np.array(ys), np.array(kinds, np.int8), np.array(hs)
+
+
+def _cap_isotropic(R, alpha0, spacing):
+    yb = R * math.cos(alpha0)
+    xl = R * math.sin(alpha0)
+    xs, ys, kinds = [], [], []
+    # outer ring: the cornea, apex to limbus (the limbus lies on the plane)
+    for ph in _ring_nodes(R, alpha0, spacing):
+        xs.append(R * math.sin(ph))
+        ys.append(R * math.cos(ph))
+        kinds.append(CORNEA)
+    # inner rings, clipped by the plane; keep half a spacing off the plane
+    i = 1
+    while True:
+        rho = R - i * spacing
+        if rho - yb < 0.5 * spacing:
+            break
+        phi_end = math.acos(yb / rho)
+        for j, ph in enumerate(_ring_nodes(rho, phi_end, spacing, include_end=False)):
+            y = rho * math.cos(ph)
+            if y - yb < 0.5 * spacing:
+                continue
+            xs.append(rho * math.sin(ph))
+            ys.append(y)
+            kinds.append(AXIS if j == 0 else INTERIOR)
+        i += 1
+    # the rigid plane, axis to (but without) the limbus
+    m = max(1, int(round(xl / spacing)))
+    for j in range(m):
+        xs.append(j * xl / m)
+        ys.append(yb)
+        kinds.append(WALL)
+    h = np.full(len(xs), spacing)
+    return np.array(xs), np.array(ys), np.array(kinds, np.int8), h
+
+
+def _inside(geometry, x, y, R, r_post, alpha0):
+    rho = np.hypot(x, y)
+    if geometry == "sector":
+        phi = np.arctan2(x, y)
+        return (rho >= r_post) & (rho <= R) & (phi <= alpha0) & (x >= 0)
+    return (rho <= R) & (y >= R * math.cos(alpha0)) & (x >= 0)
+
+
+@njit(cache=True)
+def _nearest_node_sums(x, y, sx, sy, cell, area_out, vol_out, dA):
+    """Assign each sample (sx, sy) to its nearest node; accumulate dA and 2 pi x dA."""
+    n = x.shape[0]
+    xmin = x.min() - cell
+    ymin = y.min() - cell
+    ncx = int((x.max() - xmin) / cell) + 2
+    ncy = int((y.max() - ymin) / cell) + 2
+    start = np.zeros(ncx * ncy + 1, np.int64)
+    cid = np.empty(n, np.int64)
+    for i in range(n):
+        c = int((x[i] - xmin) / cell) * ncy + int((y[i] - ymin) / cell)
+        cid[i] = c
+        start[c + 1] += 1
+    for c in range(ncx * ncy):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[fill[cid[i]]] = i
+        fill[cid[i]] += 1
+    for s in range(sx.shape[0]):
+        cx = int((sx[s] - xmin) / cell)
+        cy = int((sy[s] - ymin) / cell)
+        best = -1
+        bd = 1e300
+        for ix in range(max(cx - 2, 0), min(cx + 3, ncx)):
+            for iy in range(max(cy - 2, 0), min(cy + 3, ncy)):
+                c = ix * ncy + iy
+                for t in range(start[c], start[c + 1]):
+                    j = order[t]
+                    d = (x[j] - sx[s]) ** 2 + (y[j] - sy[s]) ** 2
+                    if d < bd:
+                        bd = d
+                        best = j
+        if best >= 0:
+            area_out[best] += dA
+            vol_out[best] += 2.0 * np.pi * sx[s] * dA
+
+
+def _areas_and_volumes(geometry, x, y, h, R, r_post, alpha0, per_spacing=8):
+    ds = h.min() / per_spacing
+    gx = np.arange(ds / 2, x.max() + ds, ds)
+    gy = np.arange(y.min() - ds / 2, y.max() + ds, ds)
+    SX, SY = np.meshgrid(gx, gy, indexing="ij")
+    inside = _inside(geometry, SX, SY, R, r_post, alpha0)
+    sx, sy = SX[inside].copy(), SY[inside].copy()
+    area = np.zeros_like(x)
+    vol = np.zeros_like(x)
+    _nearest_node_sums(x, y, sx, sy, h.max(), area, vol, ds * ds)
+    if np.any(area <= 0):
+        raise RuntimeError("a fluid node received no area: node layout is degenerate")
+    area *= exact_area(geometry, R, r_post, alpha0) / area.sum()
+    vol *= exact_volume(geometry, R, r_post, alpha0) / vol.sum()
+    return area, vol
+
+
+def _isotropic_rings_for(target, R, r_post, alpha0):
+    best = None
+    for n_rings in range(4, 200):
+        x, _, _, _ = _sector_isotropic(R, r_post, alpha0, n_rings)
+        err = abs(len(x) - target)
+        if best is None or err < best[0]:
+            best = (err, n_rings)
+        if len(x) > target:
+            break
+    return best[1]
+
+
+def build_chamber(geometry, layout, resolution, R, r_post, alpha0) -> Chamber:
+    """Reference chamber in SI units (R, r_post in m, alpha0 in rad)."""
+    if geometry == "sector":
+        if layout == "polar":
+            n_rho, n_phi = POLAR_LATTICE[resolution]
+            x, y, kind, h = _sector_polar(R, r_post, alpha0, n_rho, n_phi)
+        else:
+            n_rings = _isotropic_rings_for(TARGET_NODES[resolution], R, r_post, alpha0)
+            x, y, kind, h = _sector_isotropic(R, r_post, alpha0, n_rings)
+    else:
+        if layout == "polar":
+            raise ValueError("layout 'polar' exists only for geometry 'sector'")
+        # spacing that gives about the target count in the cap's area
+        area = exact_area("cap", R, r_post, alpha0)
+        spacing = math.sqrt(area / TARGET_NODES[resolution])
+        x, y, kind, h = _cap_isotropic(R, alpha0, spacing)
+    cornea = np.flatnonzero(kind == CORNEA)
+    phi = np.arctan2(x[cornea], y[cornea])
+    order = np.argsort(phi)
+    cornea, phi = cornea[order], phi[order]
+    area_, vol = _areas_and_volumes(geometry, x, y, h, R, r_post, alpha0)
+    return Chamber(x, y, kind, h, area_, vol, cornea, phi, geometry, layout, R, r_post, alpha0)
+
+
+def chamber_volume(geometry, xc, yc, r_post, alpha0) -> float:
+    """Volume of the chamber [m^3] bounded by the cornea polyline (xc, yc), apex first.
+
+    The region between the axis, the cornea and the straight closing line(s) is a polygon in the
+    meridian plane; its volume of revolution is the sum of cone frusta (Pappus):
+    V = pi/3 sum (x_a^2 + x_a x_b + x_b^2)(y_a - y_b) around the polygon, taken clockwise.
+    ``sector``: polygon origin-apex-cornea-limbus-origin minus the posterior sector;
+    ``cap``: polygon (0, y_limbus)-apex-cornea-limbus.
+    """
+    if geometry == "sector":
+        px = np.concatenate(([0.0], xc, [0.0]))
+        py = np.concatenate(([0.0], yc, [0.0]))
+        inner = 2.0 * math.pi / 3.0 * r_post ** 3 * (1.0 - math.cos(alpha0))
+    else:
+        px = np.concatenate(([0.0], xc, [0.0]))
+        py = np.concatenate(([yc[-1]], yc, [yc[-1]]))
+        inner = 0.0
+    xa, xb = px[:-1], px[1:]
+    ya, yb = py[:-1], py[1:]
+    v = math.pi / 3.0 * np.sum((xa * xa + xa * xb + xb * xb) * (ya - yb))
+    return abs(v) - inner

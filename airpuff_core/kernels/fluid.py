@@ -1,0 +1,83 @@
+"""Pointwise pieces of the axisymmetric weakly compressible Navier-Stokes equations (SI units).
+
+    d rho/dt  = -rho ( dvx/dx + vx/x + dvy/dy )
+    rho dvx/dt = -dp/dx + mu ( lap vx - vx/x^2 )
+    rho dvy/dt = -dp/dy + mu lap vy,          lap f = f_xx + f_yy + f_x / x
+    p = p0 + rho0 c^2 / gamma [ (rho/rho0)^gamma - 1 ]
+
+On the axis (x = 0) the 1/x terms take their limits: vx/x -> dvx/dx, f_x/x -> f_xx, and vx = 0.
+Node kinds: INTERIOR, AXIS (interior node on the axis), WALL (rigid, no-slip), CORNEA (moves with
+the membrane).  Only INTERIOR and AXIS nodes integrate the momentum equation.
+"""
+
+import numpy as np
+from numba import njit
+
+from .mfpm import derivatives
+from .neighbours import AXIS_EPS
+
+INTERIOR = 0
+AXIS = 1
+WALL = 2
+CORNEA = 3
+
+
+@njit(cache=True)
+def velocity_derivatives(x, vx, vy, nbr, mirrored, count, weights, dvx, dvy, div):
+    """Derivative vectors of vx (odd in x) and vy (even), and the axisymmetric divergence."""
+    derivatives(vx, -1.0, nbr, mirrored, count, weights, dvx)
+    derivatives(vy, 1.0, nbr, mirrored, count, weights, dvy)
+    for i in range(x.shape[0]):
+        if x[i] < AXIS_EPS:
+            div[i] = 2.0 * dvx[i, 0] + dvy[i, 1]
+        else:
+            div[i] = dvx[i, 0] + dvy[i, 1] + vx[i] / x[i]
+
+
+@njit(cache=True)
+def tait_pressure(rho, rho0, p0, c, gamma, out):
+    """Equation of state (5): p = p0 + rho0 c^2/gamma [(rho/rho0)^gamma - 1]  [Pa]."""
+    b = rho0 * c * c / gamma
+    for i in range(rho.shape[0]):
+        out[i] = p0 + b * ((rho[i] / rho0) ** gamma - 1.0)
+
+
+@njit(cache=True)
+def advance_density(rho_from, rho_at, div, dt, extra, extra_dt, out):
+    """out = rho_from - dt rho_at div + extra_dt * extra  (one explicit continuity update)."""
+    for i in range(rho_from.shape[0]):
+        out[i] = rho_from[i] - dt * rho_at[i] * div[i] + extra_dt * extra[i]
+
+
+@njit(cache=True)
+def advance_velocity(kind, x, vx, vy, grad_p, dvx, dvy, rho_half, rho_n, mu, dt, hv_x, hv_y,
+                     vx_new, vy_new):
+    """Mid-point velocity update of the paper (section 3), axisymmetric form:
+
+        v^{n+1} = v^n - dt/rho^{n+1/2} grad p^{n+1/2} + dt mu/rho^n (viscous term)^n + dt HV(v^n)
+
+    ``grad_p`` holds derivative vectors at n+1/2, ``dvx``/``dvy`` at n.  WALL and CORNEA nodes
+    are left untouched (their velocity is imposed).
+    """
+    for i in range(x.shape[0]):
+        k = kind[i]
+        if k == INTERIOR:
+            xi = x[i]
+            lap_vx = dvx[i, 2] + dvx[i, 4] + dvx[i, 0] / xi - vx[i] / (xi * xi)
+            lap_vy = dvy[i, 2] + dvy[i, 4] + dvy[i, 0] / xi
+            vx_new[i] = vx[i] + dt * (-grad_p[i, 0] / rho_half[i] + mu * lap_vx / rho_n[i] + hv_x[i])
+            vy_new[i] = vy[i] + dt * (-grad_p[i, 1] / rho_half[i] + mu * lap_vy / rho_n[i] + hv_y[i])
+        elif k == AXIS:
+            lap_vy = 2.0 * dvy[i, 2] + dvy[i, 4]
+            vx_new[i] = 0.0
+            vy_new[i] = vy[i] + dt * (-grad_p[i, 1] / rho_half[i] + mu * lap_vy / rho_n[i] + hv_y[i])
+
+
+@njit(cache=True)
+def max_speed(vx, vy):
+    m = 0.0
+    for i in range(vx.shape[0]):
+        s = vx[i] * vx[i] + vy[i] * vy[i]
+        if s > m:
+            m = s
+    return np.sqrt(m)

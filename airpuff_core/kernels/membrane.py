@@ -1,0 +1,143 @@
+"""Axisymmetric Fung membrane in discrete-energy form, lumped pressure loads, Verlet sub-steps (SI).
+
+Nodes k = 0..N-1 at reference angles phi_k = k dphi on the stress-free arc of radius R_ref;
+node 0 is the apex (on the axis), node N-1 the limbus (fixed).  Segment s joins nodes s and s+1:
+
+    lambda1 = |X_{s+1} - X_s| / L0_s,            L0_s = 2 R_ref sin(dphi/2)  (reference chord)
+    lambda2 = (x_s + x_{s+1}) / S0_s,            S0_s = R_ref (sin phi_s + sin phi_{s+1})
+    E_i = (lambda_i^2 - 1) / 2
+    W = C/2 [exp(Q) - 1],  Q = k (E1^2 + E2^2 + 2 nu E1 E2),  C k = E0 h / (1 - nu^2) = Ebar
+    N1 = dW/dE1 = Ebar e^Q (E1 + nu E2),  N2 = Ebar e^Q (E2 + nu E1)
+    Pi = sum_s A0_s W(E1, E2),          A0_s = 2 pi R_ref^2 (cos phi_s - cos phi_{s+1})
+
+A uniformly scaled arc has lambda1 = lambda2 exactly in every segment.  The internal nodal force
+is -dPi/dX.  The net pressure q = p_fluid - p_air acts on the tributary area of each node (half of
+each adjacent segment, as a surface of revolution) along the segment normal: these lumped loads
+balance the apex to second order (2 N kappa = q), which consistent linear-element loads do not.
+With k = 0 the law is exactly the Saint Venant-Kirchhoff membrane.
+"""
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def fung_resultants(E1, E2, Ebar, nu, k):
+    """Second Piola-Kirchhoff membrane forces (N1, N2) [N/m] of the simplified Fung law."""
+    eQ = np.exp(k * (E1 * E1 + E2 * E2 + 2.0 * nu * E1 * E2))
+    return Ebar * eQ * (E1 + nu * E2), Ebar * eQ * (E2 + nu * E1)
+
+
+@njit(cache=True)
+def internal_forces(X, Y, L0, S0, A0, Ebar, nu, k, Fx, Fy):
+    """Fx, Fy = -dPi/dX [N] (overwritten)."""
+    n = X.shape[0]
+    for i in range(n):
+        Fx[i] = 0.0
+        Fy[i] = 0.0
+    for s in range(n - 1):
+        dx = X[s + 1] - X[s]
+        dy = Y[s + 1] - Y[s]
+        E1 = 0.5 * ((dx * dx + dy * dy) / (L0[s] * L0[s]) - 1.0)
+        lam2 = (X[s] + X[s + 1]) / S0[s]
+        E2 = 0.5 * (lam2 * lam2 - 1.0)
+        N1, N2 = fung_resultants(E1, E2, Ebar, nu, k)
+        g1 = A0[s] * N1 / (L0[s] * L0[s])
+        Fx[s] += g1 * dx
+        Fy[s] += g1 * dy
+        Fx[s + 1] -= g1 * dx
+        Fy[s + 1] -= g1 * dy
+        g2 = A0[s] * N2 * lam2 / S0[s]
+        Fx[s] -= g2
+        Fx[s + 1] -= g2
+
+
+@njit(cache=True)
+def add_pressure_loads(X, Y, q, Fx, Fy):
+    """Add the lumped loads of the net inside pressure q [Pa] to Fx, Fy [N].
+
+    Half-segment from node s to the mid-point m: area 2 pi (x_s + x_m)/2 * L/2, outward normal
+    n = (-dy, dx)/L for a segment running from the apex towards the limbus.
+    """
+    n = X.shape[0]
+    for s in range(n - 1):
+        dx = X[s + 1] - X[s]
+        dy = Y[s + 1] - Y[s]
+        xm = 0.5 * (X[s] + X[s + 1])
+        # area * normal = 2 pi (x_a + x_m)/2 * (L/2) * (-dy, dx)/L
+        wa = 0.5 * np.pi * (X[s] + xm)
+        wb = 0.5 * np.pi * (xm + X[s + 1])
+        Fx[s] += q[s] * wa * (-dy)
+        Fy[s] += q[s] * wa * dx
+        Fx[s + 1] += q[s + 1] * wb * (-dy)
+        Fy[s + 1] += q[s + 1] * wb * dx
+
+
+@njit(cache=True)
+def air_jet(t, phi, pmax, a, b, T, t0):
+    """Eq. (11): p_a = pmax exp(-a sin^2 phi) exp(-b (t - t0)^2 / T^2)  [Pa]."""
+    s = np.sin(phi)
+    return pmax * np.exp(-a * s * s) * np.exp(-b * (t - t0) * (t - t0) / (T * T))
+
+
+@njit(cache=True)
+def _total_forces(X, Y, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end, frac, t, jet, Fx, Fy, q):
+    for i in range(X.shape[0]):
+        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - air_jet(t, phi[i], jet[0], jet[1],
+                                                                      jet[2], jet[3], jet[4])
+    internal_forces(X, Y, L0, S0, A0, Ebar, nu, k, Fx, Fy)
+    add_pressure_loads(X, Y, q, Fx, Fy)
+
+
+@njit(cache=True)
+def advance_membrane(X, Y, VX, VY, mass, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end,
+                     t_start, dt, n_sub, jet, Fx, Fy, q):
+    """Velocity-Verlet sub-steps from t_start to t_start + dt (in place).
+
+    The fluid pressure on the cornea is interpolated linearly from p_start (at t_start) to p_end;
+    the jet (jet = pmax, a, b, T, t0) is evaluated at each sub-step.  Apex: x = 0 (u = 0; w' = 0
+    holds by symmetry of the energy).  Limbus: fixed (eq. 10).
+    """
+    n = X.shape[0]
+    h = dt / n_sub
+    _total_forces(X, Y, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end, 0.0, t_start, jet, Fx, Fy, q)
+    for m in range(n_sub):
+        for i in range(n - 1):
+            VX[i] += 0.5 * h * Fx[i] / mass[i]
+            VY[i] += 0.5 * h * Fy[i] / mass[i]
+        VX[0] = 0.0
+        for i in range(n - 1):
+            X[i] += h * VX[i]
+            Y[i] += h * VY[i]
+        frac = (m + 1.0) / n_sub
+        _total_forces(X, Y, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end, frac,
+                      t_start + (m + 1) * h, jet, Fx, Fy, q)
+        for i in range(n - 1):
+            VX[i] += 0.5 * h * Fx[i] / mass[i]
+            VY[i] += 0.5 * h * Fy[i] / mass[i]
+        VX[0] = 0.0
+        X[0] = 0.0
+
+
+@njit(cache=True)
+def max_wave_speed(X, Y, L0, S0, Ebar, nu, k, rho_h):
+    """Largest in-plane wave speed [m/s] from the tangent stiffness of the current state:
+    c^2 = (N + lambda^2 dN/dE) / (rho_c h), maximised over segments and both directions."""
+    n = X.shape[0]
+    cmax2 = 0.0
+    for s in range(n - 1):
+        dx = X[s + 1] - X[s]
+        dy = Y[s + 1] - Y[s]
+        lam1sq = (dx * dx + dy * dy) / (L0[s] * L0[s])
+        lam2 = (X[s] + X[s + 1]) / S0[s]
+        E1 = 0.5 * (lam1sq - 1.0)
+        E2 = 0.5 * (lam2 * lam2 - 1.0)
+        eQ = np.exp(k * (E1 * E1 + E2 * E2 + 2.0 * nu * E1 * E2))
+        N1 = Ebar * eQ * (E1 + nu * E2)
+        N2 = Ebar * eQ * (E2 + nu * E1)
+        dN1 = Ebar * eQ * (1.0 + 2.0 * k * (E1 + nu * E2) ** 2)
+        dN2 = Ebar * eQ * (1.0 + 2.0 * k * (E2 + nu * E1) ** 2)
+        c1 = (abs(N1) + lam1sq * dN1) / rho_h
+        c2 = (abs(N2) + lam2 * lam2 * dN2) / rho_h
+        cmax2 = max(cmax2, c1, c2)
+    return np.sqrt(cmax2)

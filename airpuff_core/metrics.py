@@ -1,0 +1,78 @@
+"""ORA and Corvis-style metrics from the histories of one run (user units: ms, mmHg, mm, m/s).
+
+Applanation = a sign change of the apical curvature: convex -> concave is the first applanation
+A1 (the first such crossing), concave -> convex the second, A2 (the last such crossing).  The
+instants are interpolated linearly between solver steps, and P1, P2 are the air-jet pressure at
+the apex at those instants (eq. 11 evaluated exactly).  Then, as in the paper (section 4):
+
+    CH = P1 - P2,   IOPg = 0.5 (P1 + P2),   IOPcc = P1 - 0.43 P2
+
+DA (deformation amplitude) and t_HC are the maximum of the stored ``apex_displacement`` history
+and its time; the peak inward/outward apex speeds come from ``apex_velocity``.  A run in which
+the cornea never applanates is not an error: the applanation metrics are NaN with a reason.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _crossings(t, f, downward):
+    """Interpolated times where f crosses zero downward (+ -> -) or upward (- -> +)."""
+    out = []
+    for i in range(1, len(f)):
+        a, b = f[i - 1], f[i]
+        if (downward and a > 0 >= b) or (not downward and a < 0 <= b):
+            s = a / (a - b)
+            out.append((t[i - 1] + s * (t[i] - t[i - 1]), i - 1, s))
+    return out
+
+
+def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms):
+    """Return (metrics, notes, extra diagnostics)."""
+    nan = math.nan
+    m = {k: nan for k in ("P1", "P2", "CH", "IOPg", "IOPcc", "t_A1", "t_A2", "t_HC", "hc_delay",
+                          "DA", "v_in_max", "v_out_max")}
+    notes = {}
+    extra = {}
+    disp = hist["apex_displacement"]
+    i_max = int(np.nanargmax(disp))
+    m["DA"] = float(disp[i_max])
+    m["t_HC"] = float(time_ms[i_max])
+    m["hc_delay"] = m["t_HC"] - t0_ms
+    vel = hist["apex_velocity"]
+    m["v_in_max"] = float(np.nanmax(vel))
+    m["v_out_max"] = float(-np.nanmin(vel))
+
+    down = _crossings(step_t, step_kappa, True)
+    up = _crossings(step_t, step_kappa, False)
+    extra["applanation_crossings_down"] = len(down)
+    extra["applanation_crossings_up"] = len(up)
+    if down:
+        tA1, i, s = down[0]
+        m["t_A1"] = tA1
+        m["P1"] = jet_apex(tA1)
+        extra["fluid_pressure_apex_at_A1"] = step_fluid_p[i] + s * (step_fluid_p[i + 1] - step_fluid_p[i])
+        up = [u for u in up if u[0] > tA1]
+        if up:
+            tA2, i, s = up[-1]
+            m["t_A2"] = tA2
+            m["P2"] = jet_apex(tA2)
+            extra["fluid_pressure_apex_at_A2"] = (step_fluid_p[i]
+                                                  + s * (step_fluid_p[i + 1] - step_fluid_p[i]))
+        else:
+            for k in ("t_A2", "P2"):
+                notes[k] = "the cornea did not return to convex before the end of the run"
+    else:
+        for k in ("t_A1", "P1", "t_A2", "P2"):
+            notes[k] = "the cornea never applanated (apex curvature stayed convex)"
+    if math.isfinite(m["P1"]) and math.isfinite(m["P2"]):
+        m["CH"] = m["P1"] - m["P2"]
+        m["IOPg"] = 0.5 * (m["P1"] + m["P2"])
+        m["IOPcc"] = m["P1"] - 0.43 * m["P2"]
+    else:
+        for k in ("CH", "IOPg", "IOPcc"):
+            notes[k] = "needs both applanations"
+    return m, notes, extra

@@ -1,0 +1,426 @@
+"""The coupled time loop: membrane + MFPM fluid, Dirichlet-Neumann iterations in every step.
+
+One step from t^n to t^{n+1} = t^n + dt (SI units inside):
+
+1. Fluid predictor (the paper's mid-point scheme, section 3), independent of the coupling:
+       rho^{n+1/2} = rho^n - dt/2 rho^n div^n v^n + dt HV(rho^n)
+       x^{n+1/2}   = x^n + dt/2 v^n
+       v^{n+1}     = v^n - dt/rho^{n+1/2} grad^{n+1/2} p^{n+1/2} + dt mu/rho^n visc^n(v^n) + dt HV(v^n)
+       x^{n+1}     = x^{n+1/2} + dt/2 v^{n+1}
+   for the nodes that are not on the cornea; HV(f) = gamma c h^5 L^3 f is the stabilising
+   hyperviscosity (L the Brookshaw Laplacian, SPEC section 4).
+2. Dirichlet-Neumann iterations k = 1, 2, ...:
+   (a) advance the membrane from its state at t^n with the interface pressure interpolated from
+       p^n to the current estimate p^k (plus the jet), by Verlet sub-steps;
+   (b) impose the cornea's position and velocity on the fluid interface nodes (Dirichlet);
+   (c) rho^{n+1} = rho^{n+1/2} - dt/2 rho^{n+1/2} div^{n+1} v^{n+1}, p^{n+1} from eq. (5);
+       the new interface pressure is the membrane's load (Neumann);
+   until ||p^{k} - p^{k-1}|| / max(||p^{k-1} - p0||, p_ref) < coupling_tol, with k >= 2.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+
+import numpy as np
+
+from .errors import SimulationError
+from .fluid import Operators
+from .geometry import build_chamber, chamber_volume
+from .kernels.fluid import (CORNEA, advance_density, advance_velocity, max_speed, tait_pressure,
+                            velocity_derivatives)
+from .kernels.mfpm import derivatives
+from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
+from .membrane import apex_curvature, build_membrane, static_equilibrium
+from .metrics import compute_metrics
+from .params import MMHG_PA, RunParams
+from .result import SNAPSHOT_LABELS, RunResult
+
+KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
+ACOUSTIC_CFL = 0.3  # dt <= ACOUSTIC_CFL * h_min / (c + v_max)
+HV_SAFETY = 1.0  # dt <= HV_SAFETY / (spectral radius of the hyperviscous operator); FE limit is 2
+HV_POWER_ITERATIONS = 2  # power iterations per step, warm-started (the mode changes slowly)
+HV_MARGIN = 1.1  # a warm-started power iteration may underestimate the radius slightly
+MEMBRANE_SAFETY = 0.4  # membrane sub-step <= MEMBRANE_SAFETY * min chord / wave speed
+P_REF = 1.0  # Pa: floor of the normalisation of the coupling residual (meaningful at rest)
+BLOWUP_SPEED = 50.0  # m/s: a fluid speed above this is a blow-up (physical speeds ~0.2-1 m/s)
+BLOWUP_DENSITY = 0.2  # relative density change beyond which the run is declared blown up
+
+
+def sound_speed(rule, c0, c_slope, v_prev, v_running):
+    """Artificial sound speed [m/s]: c = c0 + c_slope v_max (SPEC section 4, ``c_rule``)."""
+    if rule == "fixed":
+        return c0
+    if rule == "per_step":
+        return c0 + c_slope * v_prev
+    return c0 + c_slope * v_running
+
+
+class CoupledModel:
+    """State and operators of one run; ``step()`` advances by one coupled time step."""
+
+    def __init__(self, params: RunParams):
+        self.params = params
+        si = self.si = params.si()
+        ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
+                                          si["R"], si["r_post"], si["alpha0"])
+        self.membrane = build_membrane(ch.phi_cornea, si["R"], si["p0"], si["E0"], si["h"],
+                                       si["nu"], si["fung_k"], si["rho_c"])
+        self.jet = np.array([si["pmax"], si["a"], si["b"], si["T"], si["t0"]])
+        n = ch.n
+        self.kind = ch.kind
+        self.cornea = ch.cornea
+        self.is_cornea = ch.kind == CORNEA
+        self.x = ch.x.copy()
+        self.y = ch.y.copy()
+        self.vx = np.zeros(n)
+        self.vy = np.zeros(n)
+        self.rho = np.full(n, si["rho_f"])
+        self.mass = si["rho_f"] * ch.volume  # fixed particle masses [kg]
+        # the cornea starts in the exact discrete equilibrium under IOP (and p_a(0) if asked)
+        X0, Y0 = ch.x[ch.cornea].copy(), ch.y[ch.cornea].copy()
+        q = np.full(X0.shape, si["p0"])
+        if params.jet_start == "equilibrium":
+            q -= np.array([air_jet(0.0, p, *self.jet) for p in ch.phi_cornea])
+        X, Y, self.equilibrium_residual = static_equilibrium(self.membrane, X0, Y0, q)
+        self.rest_shape_deviation = float(np.max(np.hypot(X - X0, Y - Y0)))
+        self.X, self.Y = X, Y
+        self.VX = np.zeros_like(X)
+        self.VY = np.zeros_like(Y)
+        self.x[ch.cornea] = X
+        self.y[ch.cornea] = Y
+        self.apex_y0 = Y[0]
+        self.t = 0.0
+        self.v_prev = 0.0
+        self.v_running = 0.0
+        self.h_min = float(ch.h.min())
+        self.hv_scale_unit = ch.h ** 5  # HV scale per unit gamma c
+        self.ops_n = Operators(ch.h, ch.area, KAPPA).build(self.x, self.y)
+        self.ops_half = Operators(ch.h, ch.area, KAPPA)
+        self.ops_new = Operators(ch.h, ch.area, KAPPA)
+        self.hv_radius_unit, self.hv_mode = self.ops_n.hyperviscous_spectral_radius(
+            self.hv_scale_unit)
+        self.hv_radius_max = self.hv_radius_unit
+        self.dvx = np.zeros((n, 5))
+        self.dvy = np.zeros((n, 5))
+        self.div = np.zeros(n)
+        velocity_derivatives(self.x, self.vx, self.vy, *self.ops_n.args(), self.dvx, self.dvy,
+                             self.div)
+        self.p = np.empty(n)
+        self.c = sound_speed(params.c_rule, si["c0"], si["c_slope"], 0.0, 0.0)
+        tait_pressure(self.rho, si["rho_f"], si["p0"], self.c, si["gamma"], self.p)
+        self.p_interface = self.p[self.cornea].copy()
+        # work arrays (allocated once)
+        self._w = {k: np.empty(n) for k in ("w1", "w2", "hv_rho", "hv_vx", "hv_vy", "rho_half",
+                                            "p_half", "vx_new", "vy_new", "x_new", "y_new",
+                                            "rho_new", "div_new", "x_half", "y_half")}
+        self._grad_p = np.zeros((n, 5))
+        self._dvx_new = np.zeros((n, 5))
+        self._dvy_new = np.zeros((n, 5))
+        N = X.shape[0]
+        self._mF = {k: np.empty(N) for k in ("Fx", "Fy", "q")}
+        self.last_iterations = 0
+        self.last_residual = 0.0
+        self.last_substeps = 0
+        self.dt = 0.0
+        self.dt_limits = {}
+        self.max_cond = float(self.ops_n.cond.max())
+
+    # ---------------------------------------------------------------------------------------
+    def time_step(self):
+        """dt [s] from the acoustic CFL condition and the hyperviscosity's stability limit."""
+        si = self.si
+        vmax = max_speed(self.vx, self.vy)
+        dt_ac = ACOUSTIC_CFL * self.h_min / (self.c + vmax)
+        gamma = si["hyperviscosity"]
+        if gamma > 0:
+            # the stiffest hyperviscous mode moves with the nodes: refresh the estimate
+            self.hv_radius_unit, self.hv_mode = self.ops_n.hyperviscous_spectral_radius(
+                self.hv_scale_unit, self.hv_mode, HV_POWER_ITERATIONS)
+            self.hv_radius_max = max(self.hv_radius_max, self.hv_radius_unit)
+            dt_hv = HV_SAFETY / (gamma * self.c * self.hv_radius_unit * HV_MARGIN)
+        else:
+            dt_hv = math.inf
+        self.dt_limits = {"acoustic": dt_ac, "hyperviscosity": dt_hv}
+        return min(dt_ac, dt_hv)
+
+    def refresh_derivatives(self):
+        """Recompute the operators and velocity derivatives at the current state (after the state
+        arrays were set from outside, e.g. by the stability analysis)."""
+        self.ops_n.build(self.x, self.y)
+        velocity_derivatives(self.x, self.vx, self.vy, *self.ops_n.args(), self.dvx, self.dvy,
+                             self.div)
+
+    def step(self, t_stop=None, dt=None):
+        """Advance by one coupled step (dt from the stability limits unless given) [s]."""
+        si = self.si
+        w = self._w
+        self.c = c = sound_speed(self.params.c_rule, si["c0"], si["c_slope"], self.v_prev,
+                                 self.v_running)
+        if dt is None:
+            dt = self.time_step()
+        if t_stop is not None and self.t + dt > t_stop:
+            dt = max(t_stop - self.t, 1e-12)
+        self.dt = dt
+        t_ms = self.t * 1e3
+        rho0, p0, gam = si["rho_f"], si["p0"], si["gamma"]
+        mem = self.membrane
+        c_mem = max_wave_speed(self.X, self.Y, mem.L0, mem.S0, mem.Ebar, mem.nu, mem.k, mem.rho_h)
+        n_sub = max(1, int(math.ceil(dt / (MEMBRANE_SAFETY * mem.L0.min() / c_mem))))
+        self.last_substeps = n_sub
+        ops_n, ops_half, ops_new = self.ops_n, self.ops_half, self.ops_new
+
+        # pressure at t^n with this step's c (the EOS changes with c at fixed density)
+        tait_pressure(self.rho, rho0, p0, c, gam, self.p)
+        p_interface_n = self.p[self.cornea].copy()
+
+        # 1. fluid predictor
+        gamma = si["hyperviscosity"]
+        scale = gamma * c * self.hv_scale_unit
+        if gamma > 0:
+            ops_n.hyperviscous(self.rho, 1.0, scale, w["w1"], w["w2"], w["hv_rho"])
+            ops_n.hyperviscous(self.vx, -1.0, scale, w["w1"], w["w2"], w["hv_vx"])
+            ops_n.hyperviscous(self.vy, 1.0, scale, w["w1"], w["w2"], w["hv_vy"])
+        else:
+            w["hv_rho"][:] = 0.0
+            w["hv_vx"][:] = 0.0
+            w["hv_vy"][:] = 0.0
+        advance_density(self.rho, self.rho, self.div, 0.5 * dt, w["hv_rho"], dt, w["rho_half"])
+        np.multiply(self.vx, 0.5 * dt, out=w["x_half"])
+        w["x_half"] += self.x
+        np.multiply(self.vy, 0.5 * dt, out=w["y_half"])
+        w["y_half"] += self.y
+        ops_half.build(w["x_half"], w["y_half"], t_ms)
+        tait_pressure(w["rho_half"], rho0, p0, c, gam, w["p_half"])
+        derivatives(w["p_half"], 1.0, *ops_half.args(), self._grad_p)
+        w["vx_new"][:] = 0.0
+        w["vy_new"][:] = 0.0
+        advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p, self.dvx, self.dvy,
+                         w["rho_half"], self.rho, si["mu"], dt, w["hv_vx"], w["hv_vy"],
+                         w["vx_new"], w["vy_new"])
+        np.multiply(w["vx_new"], 0.5 * dt, out=w["x_new"])
+        w["x_new"] += w["x_half"]
+        np.multiply(w["vy_new"], 0.5 * dt, out=w["y_new"])
+        w["y_new"] += w["y_half"]
+
+        # 2. Dirichlet-Neumann iterations
+        p_est = p_interface_n.copy()
+        norm = math.sqrt(p_est.shape[0])
+        cornea = self.cornea
+        mF = self._mF
+        max_it = self.params.max_coupling_iterations
+        for it in range(1, max_it + 1):
+            X, Y, VX, VY = self.X.copy(), self.Y.copy(), self.VX.copy(), self.VY.copy()
+            advance_membrane(X, Y, VX, VY, mem.mass, mem.phi, mem.L0, mem.S0, mem.A0, mem.Ebar,
+                             mem.nu, mem.k, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
+                             mF["Fx"], mF["Fy"], mF["q"])
+            w["x_new"][cornea] = X
+            w["y_new"][cornea] = Y
+            w["vx_new"][cornea] = VX
+            w["vy_new"][cornea] = VY
+            if it == 1:
+                ops_new.build(w["x_new"], w["y_new"], t_ms)
+                near_cornea = ops_new.nodes_near(self.is_cornea)
+            else:
+                ops_new.build(w["x_new"], w["y_new"], t_ms, active=near_cornea)
+            velocity_derivatives(w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
+                                 self._dvx_new, self._dvy_new, w["div_new"])
+            advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
+                            w["rho_new"])
+            p_new = np.empty(cornea.shape[0])
+            tait_pressure(w["rho_new"][cornea], rho0, p0, c, gam, p_new)
+            change = np.linalg.norm(p_new - p_est) / norm
+            scale_p = max(np.linalg.norm(p_est - p0) / norm, P_REF)
+            residual = change / scale_p
+            p_est = p_new
+            if it >= 2 and residual < si["tol"]:
+                break
+        else:
+            raise SimulationError(
+                f"Dirichlet-Neumann coupling did not converge at t = {t_ms:.4f} ms: residual "
+                f"{residual:.3g} > tolerance {si['tol']:.3g} after {max_it} iterations",
+                t_ms, "coupling")
+        self.last_iterations = it
+        self.last_residual = residual
+
+        # commit the step
+        self.X, self.Y, self.VX, self.VY = X, Y, VX, VY
+        self.x, w["x_new"] = w["x_new"], self.x
+        self.y, w["y_new"] = w["y_new"], self.y
+        self.vx, w["vx_new"] = w["vx_new"], self.vx
+        self.vy, w["vy_new"] = w["vy_new"], self.vy
+        self.rho, w["rho_new"] = w["rho_new"], self.rho
+        self.div, w["div_new"] = w["div_new"], self.div
+        self.dvx, self._dvx_new = self._dvx_new, self.dvx
+        self.dvy, self._dvy_new = self._dvy_new, self.dvy
+        self.ops_n, self.ops_new = ops_new, ops_n
+        self.t += dt
+        vmax = max_speed(self.vx, self.vy)
+        self.v_prev = vmax
+        self.v_running = max(self.v_running, vmax)
+        tait_pressure(self.rho, rho0, p0, c, gam, self.p)
+        self.p_interface = self.p[cornea].copy()
+        if not math.isfinite(vmax) or vmax > BLOWUP_SPEED:
+            raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: max speed "
+                                  f"{vmax:.3g} m/s", self.t * 1e3, "blow-up")
+        dev = np.max(np.abs(self.rho / rho0 - 1.0))
+        if not math.isfinite(dev) or dev > BLOWUP_DENSITY:
+            raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: density deviates "
+                                  f"by {dev:.3g} from the reference", self.t * 1e3, "blow-up")
+        return dt
+
+    # ---------------------------------------------------------------------------------------
+    def apex_curvature(self):
+        return apex_curvature(self.X, self.Y)
+
+    def chamber_volume(self):
+        si = self.si
+        return chamber_volume(self.params.geometry, self.X, self.Y, si["r_post"], si["alpha0"])
+
+    def density_volume(self):
+        """Chamber volume implied by the density field, sum m_j / rho_j [m^3]."""
+        return float(np.sum(self.mass / self.rho))
+
+    def probe(self):
+        """Scalar quantities recorded in the time histories (user units)."""
+        si = self.si
+        return {
+            "apex_displacement": (self.apex_y0 - self.Y[0]) * 1e3,
+            "apex_velocity": -self.VY[0],
+            "apex_curvature": self.apex_curvature() * 1e-3,
+            "jet_pressure_apex": air_jet(self.t, 0.0, *self.jet) / MMHG_PA,
+            "fluid_pressure_apex": self.p_interface[0] / MMHG_PA,
+            "chamber_volume": self.chamber_volume() * 1e9,
+            "coupling_iterations": float(self.last_iterations),
+            "sound_speed": self.c,
+        }
+
+    def snapshot(self):
+        return {
+            "cornea_x": self.X * 1e3, "cornea_y": self.Y * 1e3,
+            "fluid_x": self.x * 1e3, "fluid_y": self.y * 1e3,
+            "fluid_pressure": self.p / MMHG_PA,
+            "fluid_vx": self.vx.copy(), "fluid_vy": self.vy.copy(),
+        }
+
+
+def simulate(params: RunParams, progress=None) -> RunResult:
+    """Run one coupled simulation and return its histories, snapshots and metrics.
+
+    ``progress(t_ms, t_end_ms)`` is called now and then.  Raises SimulationError on blow-up,
+    non-convergent coupling or an ill-conditioned operator (the message names the time).
+    """
+    wall0 = _time.monotonic()
+    model = CoupledModel(params)
+    si = model.si
+    t_end = si["t_end"]
+    dt_out = si["output_interval"]
+    n_out = int(math.floor(t_end / dt_out + 1e-9)) + 1
+    out_t = np.arange(n_out) * dt_out
+    hist = {k: np.full(n_out, np.nan) for k in model.probe()}
+    prev = model.probe()
+    for k, v in prev.items():
+        hist[k][0] = v
+    next_out = 1
+    t_prev = 0.0
+    # step-level series for the applanation detection and Imbert-Fick diagnostics
+    step_t = [0.0]
+    step_kappa = [prev["apex_curvature"]]
+    step_pf = [prev["fluid_pressure_apex"]]
+    snaps = {label: None for label in SNAPSHOT_LABELS}
+    snap_t = {label: math.nan for label in SNAPSHOT_LABELS}
+    snaps["initial"], snap_t["initial"] = model.snapshot(), 0.0
+    t0 = si["t0"]
+    best_da = -math.inf
+    n_steps = 0
+    iters = []
+    dts = []
+    max_residual = 0.0
+    substeps = []
+    vol0 = prev["chamber_volume"]
+    dens_vol0 = model.density_volume()
+    max_vol_mismatch = 0.0
+    last_progress = _time.monotonic()
+    if progress:
+        progress(0.0, t_end * 1e3)
+    while model.t < t_end - 1e-15:
+        dt = model.step(t_stop=t_end)
+        n_steps += 1
+        iters.append(model.last_iterations)
+        dts.append(dt)
+        substeps.append(model.last_substeps)
+        max_residual = max(max_residual, model.last_residual)
+        cur = model.probe()
+        t = model.t
+        step_t.append(t * 1e3)
+        step_kappa.append(cur["apex_curvature"])
+        step_pf.append(cur["fluid_pressure_apex"])
+        # snapshots at the applanations (sign changes of the apex curvature) and the jet peak
+        if step_kappa[-2] > 0 >= step_kappa[-1] and snaps["first_applanation"] is None:
+            snaps["first_applanation"], snap_t["first_applanation"] = model.snapshot(), t * 1e3
+        if step_kappa[-2] < 0 <= step_kappa[-1]:
+            snaps["second_applanation"], snap_t["second_applanation"] = model.snapshot(), t * 1e3
+        if snaps["jet_peak"] is None and t >= t0:
+            snaps["jet_peak"], snap_t["jet_peak"] = model.snapshot(), t * 1e3
+        # histories on the output grid, linearly interpolated between solver steps
+        while next_out < n_out and out_t[next_out] <= t + 1e-15:
+            s = (out_t[next_out] - t_prev) / (t - t_prev)
+            for k in hist:
+                hist[k][next_out] = prev[k] + s * (cur[k] - prev[k])
+            if hist["apex_displacement"][next_out] > best_da:
+                best_da = hist["apex_displacement"][next_out]
+                snaps["max_displacement"], snap_t["max_displacement"] = model.snapshot(), t * 1e3
+            next_out += 1
+        vol_mismatch = abs((cur["chamber_volume"] - vol0) * 1e-9
+                           - (model.density_volume() - dens_vol0)) / (vol0 * 1e-9)
+        max_vol_mismatch = max(max_vol_mismatch, vol_mismatch)
+        prev, t_prev = cur, t
+        if progress and _time.monotonic() - last_progress > 0.2:
+            progress(t * 1e3, t_end * 1e3)
+            last_progress = _time.monotonic()
+    snaps["end"], snap_t["end"] = model.snapshot(), model.t * 1e3
+    if progress:
+        progress(t_end * 1e3, t_end * 1e3)
+
+    # fill missing snapshots with NaN arrays of the right shape
+    template = snaps["initial"]
+    snapshot_arrays = {}
+    for name in template:
+        rows = [snaps[lbl][name] if snaps[lbl] is not None else np.full_like(template[name], np.nan)
+                for lbl in SNAPSHOT_LABELS]
+        snapshot_arrays[name] = np.stack(rows)
+    snapshot_time = np.array([snap_t[lbl] for lbl in SNAPSHOT_LABELS])
+
+    metrics, notes, extra = compute_metrics(
+        out_t * 1e3, hist, np.array(step_t), np.array(step_kappa), np.array(step_pf),
+        lambda t_ms: air_jet(t_ms * 1e-3, 0.0, *model.jet) / MMHG_PA, t0 * 1e3)
+    wall = _time.monotonic() - wall0
+    dts = np.array(dts) if dts else np.array([0.0])
+    diagnostics = {
+        "steps": n_steps,
+        "dt_mean_us": float(dts.mean() * 1e6),
+        "dt_min_us": float(dts.min() * 1e6),
+        "dt_max_us": float(dts.max() * 1e6),
+        "n_fluid": int(model.chamber.n),
+        "n_cornea": int(model.X.shape[0]),
+        "mean_coupling_iterations": float(np.mean(iters)) if iters else 0.0,
+        "max_coupling_iterations": int(np.max(iters)) if iters else 0,
+        "max_coupling_residual": float(max_residual),
+        "mean_membrane_substeps": float(np.mean(substeps)) if substeps else 0.0,
+        "wall_s": wall,
+        "prestretch": model.membrane.lambda0,
+        "R_ref_mm": model.membrane.R_ref * 1e3,
+        "rest_shape_deviation_mm": model.rest_shape_deviation * 1e3,
+        "equilibrium_residual": model.equilibrium_residual,
+        "max_moment_condition": model.max_cond,
+        "hyperviscous_radius_per_gamma_c": model.hv_radius_max,
+        "max_volume_mismatch": max_vol_mismatch,
+        "mass_kg": float(model.mass.sum()),
+        "kappa_support": KAPPA,
+        "acoustic_cfl": ACOUSTIC_CFL,
+    }
+    diagnostics.update(extra)
+    return RunResult(params=params, time=out_t * 1e3, histories=hist, snapshot_time=snapshot_time,
+                     snapshots=snapshot_arrays, metrics=metrics, metric_notes=notes,
+                     diagnostics=diagnostics)

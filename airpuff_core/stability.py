@@ -1,0 +1,92 @@
+"""Linear stability of the coupled discrete system about the rest state (SPEC section 4).
+
+The step map S: (rho, v_fluid, X_cornea, V_cornea)^n -> (...)^{n+1} is linearised about rest by
+central differences (the coupling iterated to round-off, dt and c held fixed), and the eigenvalues
+mu of its Jacobian are computed.  A mode grows when |mu| > 1; its growth rate is ln|mu| / dt [1/s].
+Fluid positions are left out: at rest they enter only through the operators acting on uniform
+fields, which vanish, so they form neutral (Jordan) directions and cannot cause exponential growth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kernels.fluid import AXIS, INTERIOR
+from .params import RunParams
+from .simulate import CoupledModel
+
+
+@dataclass
+class StabilityReport:
+    eigenvalues: np.ndarray  # of the one-step Jacobian
+    dt: float  # s
+    n_dof: int
+
+    @property
+    def growth_rates(self) -> np.ndarray:
+        """ln|mu| / dt [1/s] of every mode, largest first."""
+        return np.sort(np.log(np.abs(self.eigenvalues)) / self.dt)[::-1]
+
+    @property
+    def max_growth_rate(self) -> float:
+        return float(self.growth_rates[0])
+
+
+def _dofs(model: CoupledModel):
+    kind = model.kind
+    moving = np.flatnonzero(kind == INTERIOR)
+    moving_y = np.flatnonzero((kind == INTERIOR) | (kind == AXIS))
+    ncor = model.X.shape[0]
+    free_x = np.arange(1, ncor - 1)  # apex x is fixed on the axis, the limbus is fixed
+    free_y = np.arange(0, ncor - 1)
+    return [("rho", np.arange(model.chamber.n)), ("vx", moving), ("vy", moving_y),
+            ("X", free_x), ("Y", free_y), ("VX", free_x), ("VY", free_y)]
+
+
+def _pack(model, dofs):
+    return np.concatenate([getattr(model, name)[idx] for name, idx in dofs])
+
+
+def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, eps_v=1e-6,
+                    eps_x=1e-9) -> StabilityReport:
+    """Eigenvalues of the linearised one-step map about rest, with pmax forced to 0."""
+    params = params.replace(pmax=0.0, c_rule="fixed", coupling_tol=1e-10,
+                            max_coupling_iterations=200)
+    model = CoupledModel(params)
+    if dt is None:
+        dt = model.time_step()
+    dofs = _dofs(model)
+    base = {name: getattr(model, name).copy() for name in ("x", "y", "vx", "vy", "rho", "X", "Y",
+                                                          "VX", "VY")}
+    scale = {"rho": eps_rho * model.si["rho_f"], "vx": eps_v, "vy": eps_v, "X": eps_x, "Y": eps_x,
+             "VX": eps_v, "VY": eps_v}
+
+    def run(name, i, delta):
+        for k, v in base.items():
+            setattr(model, k, v.copy())
+        if name is not None:
+            arr = getattr(model, name)
+            arr[i] += delta
+            if name in ("X", "Y", "VX", "VY"):
+                # the fluid interface nodes carry the cornea's position and velocity
+                fl = {"X": "x", "Y": "y", "VX": "vx", "VY": "vy"}[name]
+                getattr(model, fl)[model.cornea[i]] = arr[i]
+        model.t = 0.0
+        model.refresh_derivatives()
+        model.step(dt=dt)
+        return _pack(model, dofs)
+
+    n = sum(len(idx) for _, idx in dofs)
+    J = np.empty((n, n))
+    col = 0
+    for name, idx in dofs:
+        for i in idx:
+            d = scale[name]
+            J[:, col] = (run(name, i, d) - run(name, i, -d)) / (2 * d)
+            col += 1
+    # rescale to make the columns and rows comparable (a similarity transform: same eigenvalues)
+    s = np.concatenate([np.full(len(idx), scale[name]) for name, idx in dofs])
+    J = J * s[None, :] / s[:, None]
+    return StabilityReport(np.linalg.eigvals(J), dt, n)
