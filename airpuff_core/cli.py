@@ -155,3 +155,30 @@ def run_command(args) -> int:
         if args.out:
             print(f"wrote {args.out}")
     return 0
+
+
+def add_plot_parser(sub) -> None:
+    p = sub.add_parser("plot", help="write the paper's figures from a run's netCDF",
+                       description="Write apex_and_jet.png, hysteresis.png, applanation.png and "
+                                   "shapes.png from the netCDF of one run.")
+    p.add_argument("run", metavar="RUN.nc", help="netCDF written by `airpuff run --out`")
+    p.add_argument("--out", metavar="DIR", default=".", help="folder for the PNG files")
+    p.set_defaults(func=plot_command)
+
+
+def plot_command(args) -> int:
+    import os
+
+    prog = "airpuff plot"
+    if not os.path.isfile(args.run):
+        fail(prog, ValueError(f"invalid RUN.nc={args.run!r}: accepted an existing netCDF file"))
+    from .plots import plot_run
+
+    try:
+        paths = plot_run(args.run, args.out)
+    except (OSError, KeyError, ValueError) as err:
+        fail(prog, ValueError(f"invalid RUN.nc={args.run!r}: accepted a run netCDF written by "
+                              f"airpuff ({type(err).__name__}: {err})"))
+    for p in paths:
+        print(p)
+    return 0

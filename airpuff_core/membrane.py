@@ -136,20 +136,34 @@ def jet_pressure(t, phi, pmax, a, b, T, t0):
     return np.array([air_jet(t, p, pmax, a, b, T, t0) for p in np.atleast_1d(phi)])
 
 
-APEX_FIT_RADIUS = 1.0e-3  # m: apex curvature is fitted over nodes with x <= this radius
+# m: apex curvature is fitted over the nodes with x <= this radius.  It must be small against the
+# width of the jet (exp(-a sin^2 phi) falls to 1/e at 1.5 mm, by 35 % already at 1 mm): the net
+# pressure, and with it the curvature of a membrane, varies across the jet, and a wide fit measures
+# an average that is not the apex (a 1 mm fit put P1, P2 0.1-0.5 mmHg off the apex balance).
+APEX_FIT_RADIUS = 0.3e-3
 
 
-def apex_curvature(X, Y, fit_radius=APEX_FIT_RADIUS):
-    """Apical curvature [1/m], positive convex, from an even least-squares fit over x <= r_fit:
+def apex_fit_nodes(X_ref, fit_radius=APEX_FIT_RADIUS):
+    """Number of cornea nodes (apex first) whose reference x lies within ``fit_radius``, at least
+    two.  Chosen once per run, so the fit follows the same material points throughout."""
+    return max(2, int(np.searchsorted(X_ref, fit_radius * (1 + 1e-9), side="right")))
 
-        y = c0 + c2 x^2 + c4 x^4,   kappa = -2 c2
 
-    (exact for a circle up to O(x^4/R^5) terms; a fixed physical radius, not a node count, so the
-    measure converges with resolution).  Uses at least the first four nodes.
+def apex_curvature(X, Y, n_fit):
+    """Apical curvature [1/m], positive convex, from an even least-squares fit over the first
+    ``n_fit`` nodes (those within APEX_FIT_RADIUS of the axis in the reference state):
+
+        y = c0 + c2 x^2 (+ c4 x^4 when n_fit >= 4),   kappa = -2 c2
+
+    A fixed physical radius, not a node count, so the measure converges to the curvature at the
+    apex as the resolution grows.  With two nodes it is 2 (y0 - y1) / x1^2, the curvature the
+    discrete apex balance 2 N kappa = q actually sees.
     """
-    m = max(4, int(np.searchsorted(X, fit_radius, side="right")))
-    x = X[:m]
-    y = Y[:m]
-    G = np.stack([np.ones(m), x * x, x ** 4], axis=1)
+    x = X[:n_fit]
+    y = Y[:n_fit]
+    if n_fit >= 4:
+        G = np.stack([np.ones(n_fit), x * x, x ** 4], axis=1)
+    else:
+        G = np.stack([np.ones(n_fit), x * x], axis=1)
     coef = np.linalg.lstsq(G, y, rcond=None)[0]
     return -2.0 * coef[1]

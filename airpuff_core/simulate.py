@@ -32,7 +32,7 @@ from .kernels.fluid import (CORNEA, advance_density, advance_velocity, max_speed
                             velocity_derivatives)
 from .kernels.mfpm import derivatives
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
-from .membrane import apex_curvature, build_membrane, static_equilibrium
+from .membrane import apex_curvature, apex_fit_nodes, build_membrane, static_equilibrium
 from .metrics import compute_metrics
 from .params import MMHG_PA, RunParams
 from .result import SNAPSHOT_LABELS, RunResult
@@ -91,6 +91,7 @@ class CoupledModel:
         self.x[ch.cornea] = X
         self.y[ch.cornea] = Y
         self.apex_y0 = Y[0]
+        self.n_apex_fit = apex_fit_nodes(X)
         self.t = 0.0
         self.v_prev = 0.0
         self.v_running = 0.0
@@ -272,7 +273,7 @@ class CoupledModel:
 
     # ---------------------------------------------------------------------------------------
     def apex_curvature(self):
-        return apex_curvature(self.X, self.Y)
+        return apex_curvature(self.X, self.Y, self.n_apex_fit)
 
     def chamber_volume(self):
         si = self.si
@@ -380,6 +381,8 @@ def simulate(params: RunParams, progress=None) -> RunResult:
             progress(t * 1e3, t_end * 1e3)
             last_progress = _time.monotonic()
     snaps["end"], snap_t["end"] = model.snapshot(), model.t * 1e3
+    # the jet is analytic: store eq. (11) exactly on the output grid, not interpolated
+    hist["jet_pressure_apex"] = np.array([air_jet(t, 0.0, *model.jet) for t in out_t]) / MMHG_PA
     if progress:
         progress(t_end * 1e3, t_end * 1e3)
 
@@ -418,6 +421,7 @@ def simulate(params: RunParams, progress=None) -> RunResult:
         "max_volume_mismatch": max_vol_mismatch,
         "mass_kg": float(model.mass.sum()),
         "kappa_support": KAPPA,
+        "apex_fit_nodes": model.n_apex_fit,
         "acoustic_cfl": ACOUSTIC_CFL,
     }
     diagnostics.update(extra)

@@ -1,0 +1,31 @@
+"""Shared fixtures.  One real coarse run through the real CLI serves several tests."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
+
+
+def airpuff(*args, timeout=600, cwd=None):
+    """Run the real `airpuff` command (as `python -m api.cli`) and return the CompletedProcess."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return subprocess.run([sys.executable, "-m", "api.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=cwd or ROOT, env=env)
+
+
+@pytest.fixture(scope="session")
+def coarse_run(tmp_path_factory):
+    """`airpuff run --resolution coarse --json --out run.nc`: (metrics dict, netCDF path)."""
+    out = tmp_path_factory.mktemp("coarse") / "run.nc"
+    proc = airpuff("run", "--resolution", "coarse", "--json", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+    assert len(lines) == 1, proc.stdout
+    return json.loads(lines[0]), out

@@ -1,0 +1,114 @@
+"""MFPM operator: exact derivatives of linear and quadratic fields on perturbed clouds (interior,
+walls, axis, corners, cornea), second-order convergence on a smooth field, and the conditioning
+guard (SPEC section 9)."""
+
+import math
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from airpuff_core.errors import SimulationError
+from airpuff_core.fluid import Operators
+from airpuff_core.geometry import build_chamber
+from airpuff_core.kernels.fluid import AXIS, CORNEA, WALL
+from airpuff_core.kernels.mfpm import derivatives
+from airpuff_core.simulate import KAPPA
+
+R, RP, A0 = 7e-3, 2.04e-3, math.radians(60)
+
+
+def perturbed(chamber, frac, seed=1):
+    """Node cloud perturbed by up to ``frac`` of the spacing; axis nodes stay on the axis."""
+    rng = np.random.default_rng(seed)
+    x = chamber.x + frac * chamber.h * rng.uniform(-1, 1, chamber.n)
+    y = chamber.y + frac * chamber.h * rng.uniform(-1, 1, chamber.n)
+    on_axis = chamber.x < 1e-12
+    x[on_axis] = 0.0
+    x = np.maximum(x, 0.0)
+    return x, y
+
+
+def exact_quadratics(x, y):
+    """Even (parity +1) and odd (parity -1) quadratic fields and their derivative vectors."""
+    a, b, c, d = 1.3, 210.0, 4.0e4, -2.5e4
+    even = a + b * y + c * x ** 2 + d * y ** 2
+    d_even = np.stack([2 * c * x, b + 2 * d * y, np.full_like(x, 2 * c), 0 * x,
+                       np.full_like(x, 2 * d)], axis=1)
+    e, g = 170.0, 3.0e4
+    odd = e * x + g * x * y
+    d_odd = np.stack([e + g * y, g * x, 0 * x, np.full_like(x, g), 0 * x], axis=1)
+    return (even, d_even, 1.0), (odd, d_odd, -1.0)
+
+
+def max_relative_error(x, y, chamber):
+    ops = Operators(chamber.h, chamber.area, KAPPA).build(x, y)
+    worst = {}
+    for f, dexact, parity in exact_quadratics(x, y):
+        out = np.empty((x.shape[0], 5))
+        derivatives(f, parity, *ops.args(), out)
+        scale = np.abs(dexact).max()  # one scale per field: some components are exactly 0
+        err = np.abs(out - dexact) / scale
+        for kind, name in ((0, "interior"), (AXIS, "axis"), (WALL, "wall"), (CORNEA, "cornea")):
+            sel = chamber.kind == kind
+            if sel.any():
+                worst[name] = max(worst.get(name, 0.0), float(err[sel].max()))
+    return worst
+
+
+@pytest.mark.parametrize("geometry,layout", [("sector", "isotropic"), ("sector", "polar"),
+                                             ("cap", "isotropic")])
+def test_quadratics_exact_on_perturbed_cloud(geometry, layout):
+    ch = build_chamber(geometry, layout, "coarse", R, RP, A0)
+    x, y = perturbed(ch, 0.25)
+    worst = max_relative_error(x, y, ch)
+    assert set(worst) >= {"interior", "axis", "wall", "cornea"}
+    for name, err in worst.items():
+        assert err < 1e-9, f"{name}: relative error {err:.2e}"
+
+
+def test_quadratics_exact_on_deformed_cloud_of_a_run(coarse_run):
+    """The cloud at the maximum apex displacement of a real run."""
+    _, path = coarse_run
+    ds = xr.open_dataset(path)
+    i = list(ds.snapshot_label.values).index("max_displacement")
+    x = ds.fluid_x.values[i] * 1e-3
+    y = ds.fluid_y.values[i] * 1e-3
+    ch = build_chamber("sector", "isotropic", "coarse", R, RP, A0)
+    worst = max_relative_error(x, y, ch)
+    for name, err in worst.items():
+        assert err < 1e-9, f"{name}: relative error {err:.2e}"
+
+
+def smooth_errors(resolution):
+    ch = build_chamber("sector", "isotropic", resolution, R, RP, A0)
+    x, y = ch.x, ch.y
+    kx, ky = 300.0, 250.0
+    f = np.cos(kx * x) * np.sin(ky * y)  # even in x
+    fx = -kx * np.sin(kx * x) * np.sin(ky * y)
+    fy = ky * np.cos(kx * x) * np.cos(ky * y)
+    fxx = -kx ** 2 * f
+    fyy = -ky ** 2 * f
+    ops = Operators(ch.h, ch.area, KAPPA).build(x, y)
+    out = np.empty((ch.n, 5))
+    derivatives(f, 1.0, *ops.args(), out)
+    grad_err = np.sqrt(np.mean((out[:, 0] - fx) ** 2 + (out[:, 1] - fy) ** 2)) / ky
+    lap_err = np.sqrt(np.mean((out[:, 2] + out[:, 4] - fxx - fyy) ** 2)) / ky ** 2
+    return ch.h.max(), grad_err, lap_err
+
+
+def test_convergence_order_on_smooth_field():
+    """RMS errors over all nodes (boundaries included): gradient O(h^2), second derivatives O(h)."""
+    res = [smooth_errors(r) for r in ("coarse", "paper", "fine")]
+    for (h1, g1, l1), (h2, g2, l2) in zip(res[:-1], res[1:]):
+        order_grad = math.log(g1 / g2) / math.log(h1 / h2)
+        order_lap = math.log(l1 / l2) / math.log(h1 / h2)
+        assert order_grad > 1.8, order_grad
+        assert order_lap > 0.9, order_lap
+
+
+def test_ill_conditioned_support_is_an_error():
+    """A support too small for quadratics at the walls must raise, not return garbage."""
+    ch = build_chamber("sector", "isotropic", "coarse", R, RP, A0)
+    with pytest.raises(SimulationError, match="ill-conditioned"):
+        Operators(ch.h, ch.area, 1.2).build(ch.x, ch.y)
