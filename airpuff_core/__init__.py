@@ -15,8 +15,8 @@ from .params import ParameterError, RunParams  # noqa: E402
 
 
 def simulate(params, progress=None):
-    """Run one coupled simulation; see :func:`airpuff_core.simulate.simulate`."""
-    from .simulate import simulate as _simulate
+    """Run one coupled simulation; see :func:`airpuff_core.solver.simulate`."""
+    from .solver import simulate as _simulate
 
     return _simulate(params, progress=progress)
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from .kernels.fluid import AXIS, INTERIOR
 from .params import RunParams
-from .simulate import CoupledModel
+from .solver import CoupledModel
 
 
 @dataclass

@@ -13,7 +13,7 @@ from airpuff_core.fluid import Operators
 from airpuff_core.geometry import build_chamber
 from airpuff_core.kernels.fluid import AXIS, CORNEA, WALL
 from airpuff_core.kernels.mfpm import derivatives
-from airpuff_core.simulate import KAPPA
+from airpuff_core.solver import KAPPA
 
 R, RP, A0 = 7e-3, 2.04e-3, math.radians(60)
 

@@ -76,12 +76,20 @@ def test_conservation(coarse_run):
     assert ds.attrs["solver_max_volume_mismatch"] < 0.1 * change
 
 
-def test_imbert_fick_dynamic(coarse_run):
-    """At the applanations the jet pressure is close to the fluid pressure at the apex."""
-    _, path = coarse_run
+def test_apex_balance_at_applanation(coarse_run):
+    """At an applanation the membrane term vanishes, so the apex balance reads
+    P = p_fluid + rho_c h a_inward (Imbert-Fick plus the apex's inertia, SPEC section 10).
+    The acceleration is taken from the stored velocity history, independently of the solver."""
+    m, path = coarse_run
     ds = xr.open_dataset(path)
-    assert abs(float(ds.P1) - ds.attrs["solver_fluid_pressure_apex_at_A1"]) < 0.5
-    assert abs(float(ds.P2) - ds.attrs["solver_fluid_pressure_apex_at_A2"]) < 0.5
+    t = ds.time.values * 1e-3
+    accel = np.gradient(ds.apex_velocity.values, t)  # m/s^2, inward
+    rho_h = 1000.0 * 0.5e-3  # kg/m^2
+    for P, tA, key in (("P1", "t_A1", "A1"), ("P2", "t_A2", "A2")):
+        a = np.interp(m[tA] * 1e-3, t, accel)
+        p_fluid = ds.attrs[f"solver_fluid_pressure_apex_at_{key}"]
+        predicted = p_fluid + rho_h * a / MMHG
+        assert abs(m[P] - predicted) < 0.1, (P, m[P], p_fluid, predicted)
 
 
 def test_tighter_coupling_tolerance_changes_no_metric(coarse_run):

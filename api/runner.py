@@ -1,0 +1,389 @@
+"""The job runner: a thread that owns the Dask client and moves jobs through their states.
+
+One loop (period ``Settings.poll_interval``, woken early by the API on submit and cancel):
+
+1. cancelled jobs (the API marks the job and its pending points ``cancelled`` in one
+   transaction): futures that no queued or running job needs are cancelled on the cluster;
+2. queued jobs (oldest first): claimed (``running``); each pending point is either taken from the
+   ``points`` table (same key, result file still on disk: *reused*), attached to a future that is
+   already computing that key for another job, or submitted as ``sweep.store.run_point`` with
+   ``pure=False``, ``retries`` and a priority that favours older jobs;
+3. finished futures: the point's record goes to ``points`` and to every running job waiting for
+   that key, in one transaction;
+4. running jobs with no pending point: the point files are combined into the job's ``sweep.nc``
+   (only this thread touches netCDF in the server process) and the job becomes ``done`` (or
+   ``failed`` if every point failed or combining failed).
+
+The scheduler keeps no state across restarts; the database does.  On start-up, jobs left
+``running`` by a previous server are queued again; their finished points are reused, not
+recomputed (``run_point`` also reads back a point file that was written just before a crash).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import logging
+import os
+import threading
+import time
+import uuid
+from pathlib import Path
+
+from . import db
+from .settings import Settings
+
+log = logging.getLogger("airpuff.runner")
+
+MAX_LOST_RESUBMITS = 3  # futures cancelled under us (scheduler restart) are resubmitted this often
+
+
+class RunnerLocked(RuntimeError):
+    pass
+
+
+def acquire_runner_lock(data_dir: Path):
+    """Hold ``DATA_DIR/runner.lock`` for the life of the process: one runner per data directory.
+    Returns the open file (keep a reference); raises RunnerLocked if another process holds it."""
+    data_dir.mkdir(parents=True, exist_ok=True)
+    fh = open(data_dir / "runner.lock", "a+")
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.close()
+        raise RunnerLocked(f"another airpuff server is running jobs on {data_dir} "
+                           "(it holds runner.lock)") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(f"{os.getpid()}\n")
+    fh.flush()
+    return fh
+
+
+class Runner:
+    """Runs in its own thread; ``start()``, ``wake()``, ``stop()`` are safe from any thread."""
+
+    def __init__(self, settings: Settings):
+        self.settings = settings
+        self.state = "starting"
+        self.error: str | None = None
+        self.n_workers: int | None = None
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.client = None
+        self.futures: dict[str, object] = {}  # point key -> Future
+        self.trigger: dict[str, str] = {}  # point key -> id of the job that submitted it
+        self.params: dict[str, dict] = {}  # point key -> RunParams dict (for resubmission)
+        self.lost: dict[str, int] = {}
+        self._warmed: set[tuple] = set()
+        self._last_info = 0.0
+        self._n_cancelled = -1
+
+    # -- control (any thread) ----------------------------------------------------------------
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._main, name="airpuff-runner", daemon=True)
+        self._thread.start()
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def stop(self, timeout: float = 60.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    # -- the thread ---------------------------------------------------------------------------
+    def _main(self) -> None:
+        self.con = db.connect(self.settings.db_path)
+        try:
+            self._recover()
+            if not self._connect():
+                return
+            self.state = "ready"
+            self.error = None
+            log.info("runner ready: %s workers", self.n_workers)
+            while not self._stop.is_set():
+                try:
+                    self._tick()
+                except Exception as err:  # noqa: BLE001 - keep serving; the error is reported
+                    log.exception("runner loop error")
+                    self.error = f"{type(err).__name__}: {err}"
+                    self._stop.wait(2.0)
+                self._wake.wait(self.settings.poll_interval)
+                self._wake.clear()
+            self.state = "stopped"
+        except Exception as err:  # noqa: BLE001
+            log.exception("runner failed")
+            self.state = "failed"
+            self.error = f"{type(err).__name__}: {err}"
+        finally:
+            self._close()
+
+    def _close(self) -> None:
+        client, self.client = self.client, None
+        self.futures.clear()
+        if client is not None:
+            from sweep.cluster import close_client
+
+            try:
+                close_client(client)
+            except Exception:  # noqa: BLE001
+                log.exception("closing the Dask client")
+        self.con.close()
+
+    def _connect(self) -> bool:
+        """Warm the Numba cache, then start or join the cluster; retry until stopped."""
+        from sweep.cluster import make_client, warm_numba_cache
+
+        s = self.settings
+        while not self._stop.is_set():
+            try:
+                self.state = "starting"
+                self._warm(None)
+                self.state = "connecting" if s.scheduler else "starting"
+                self.client = make_client(workers=s.workers, scheduler=s.scheduler)
+                self._update_info(force=True)
+                return True
+            except Exception as err:  # noqa: BLE001
+                log.error("cannot start the Dask client: %s", err)
+                self.state = "failed"
+                self.error = f"cannot start the Dask client: {err}"
+                self._stop.wait(5.0)
+        return False
+
+    def _warm(self, options: dict | None) -> None:
+        """Compile the solver once per combination of kernel-selecting options (cheap after the
+        first time: a short run that loads from the cache)."""
+        from airpuff_core.params import CHOICES, RunParams
+        from sweep.cluster import warm_numba_cache
+
+        params = RunParams.from_dict(options or {})
+        tag = tuple(getattr(params, c) for c in CHOICES if c != "resolution")
+        if tag in self._warmed:
+            return
+        self._warmed.add(tag)
+        t = warm_numba_cache(params)
+        log.info("warmed the Numba cache for %s in %.1f s", tag, t)
+
+    def _update_info(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if self.client is None or (not force and now - self._last_info < 5.0):
+            return
+        self._last_info = now
+        try:
+            self.n_workers = len(self.client.nthreads())
+        except Exception:  # noqa: BLE001 - informational only
+            pass
+
+    # -- one pass -----------------------------------------------------------------------------
+    def _tick(self) -> None:
+        self._handle_cancelled()
+        self._claim_queued()
+        self._collect()
+        self._finish_jobs()
+        self._update_info()
+
+    def _recover(self) -> None:
+        with db.write(self.con):
+            n = self.con.execute("UPDATE jobs SET status = 'queued' WHERE status = 'running'"
+                                 ).rowcount
+        if n:
+            log.info("requeued %d job(s) left running by a previous server", n)
+
+    def _needed_keys(self) -> set[str]:
+        return {r[0] for r in self.con.execute(
+            "SELECT DISTINCT jp.key FROM job_points jp JOIN jobs j ON j.id = jp.job_id "
+            "WHERE jp.status = 'pending' AND j.status IN ('queued', 'running')")}
+
+    def _handle_cancelled(self) -> None:
+        """The API marks a cancelled job and its pending points in one transaction; here the
+        futures that no queued or running job needs any more are cancelled on the cluster."""
+        n = self.con.execute("SELECT COUNT(*) FROM jobs WHERE status = 'cancelled'").fetchone()[0]
+        if n == self._n_cancelled:
+            return
+        self._n_cancelled = n
+        with db.write(self.con):  # points of jobs cancelled by an older version of the API
+            self.con.execute("UPDATE job_points SET status = 'cancelled', message = 'job "
+                             "cancelled' WHERE status = 'pending' AND job_id IN "
+                             "(SELECT id FROM jobs WHERE status = 'cancelled')")
+        needed = self._needed_keys()
+        drop = [k for k in self.futures if k not in needed]
+        if drop and self.client is not None:
+            self.client.cancel([self.futures[k] for k in drop])
+        for k in drop:
+            self.futures.pop(k, None)
+            self.trigger.pop(k, None)
+            self.params.pop(k, None)
+        if drop:
+            log.info("cancelled %d point task(s) no job needs any more", len(drop))
+
+    def _claim_queued(self) -> None:
+        from sweep.grid import SweepSpec
+        from sweep.store import point_key
+
+        queued = self.con.execute("SELECT id, seq, spec_json FROM jobs WHERE status = 'queued' "
+                                  "ORDER BY seq").fetchall()
+        for job in queued:
+            job_id = job["id"]
+            with db.write(self.con):
+                claimed = self.con.execute(
+                    "UPDATE jobs SET status = 'running', started_at = COALESCE(started_at, ?) "
+                    "WHERE id = ? AND status = 'queued'", (db.now(), job_id)).rowcount
+            if not claimed:
+                continue
+            try:
+                spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
+                points = spec.points()
+                self._warm(spec.options)
+            except Exception as err:  # noqa: BLE001 - a stored spec this version cannot run
+                self._end_job(job_id, "failed", f"cannot start the job: {err}")
+                continue
+            pending = self.con.execute("SELECT idx, key FROM job_points WHERE job_id = ? "
+                                       "AND status = 'pending' ORDER BY idx", (job_id,)).fetchall()
+            reused, submit = [], {}
+            for row in pending:
+                params = points[row["idx"]]
+                key = point_key(params)
+                if key != row["key"]:  # keys of an older version: follow the current one
+                    with db.write(self.con):
+                        self.con.execute("UPDATE job_points SET key = ? WHERE job_id = ? AND "
+                                         "idx = ?", (key, job_id, row["idx"]))
+                if key in self.futures or key in submit:
+                    continue  # already computing for another job (or listed twice)
+                stored = self._stored(key)
+                if stored is not None:
+                    reused.append((stored["status"], stored["message"], job_id, key))
+                else:
+                    submit[key] = params.to_dict()
+            if reused:
+                with db.write(self.con):
+                    self.con.executemany(
+                        "UPDATE job_points SET status = ?, message = ?, reused = 1 "
+                        "WHERE job_id = ? AND key = ? AND status = 'pending'", reused)
+            self._submit(job_id, job["seq"], submit)
+            log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
+                     job_id, len(points), len(reused), len(submit),
+                     len(pending) - len(reused) - len(submit))
+
+    def _stored(self, key: str):
+        """The points row of ``key`` if its result is final and its file is still on disk."""
+        from sweep.store import failed_path, point_path
+
+        row = db.point_row(self.con, key)
+        if row is None or row["status"] not in ("ok", "failed"):
+            return None
+        path = (point_path if row["status"] == "ok" else failed_path)(self.settings.points_dir, key)
+        return row if path.exists() else None
+
+    def _submit(self, job_id: str, seq: int, submit: dict[str, dict]) -> None:
+        if not submit:
+            return
+        from sweep.store import run_point
+
+        with db.write(self.con):
+            self.con.executemany(
+                "INSERT INTO points (key, params_json, status, submissions) "
+                "VALUES (?, ?, 'pending', 1) ON CONFLICT (key) DO UPDATE SET "
+                "status = 'pending', submissions = submissions + 1",
+                [(k, json.dumps(p, sort_keys=True)) for k, p in submit.items()])
+        points_dir = str(self.settings.points_dir)
+        for key, params in submit.items():
+            self.futures[key] = self.client.submit(
+                run_point, params, points_dir, pure=False, retries=self.settings.retries,
+                priority=-int(seq), key=f"airpuff-point-{key}-{uuid.uuid4().hex[:8]}")
+            self.trigger[key] = job_id
+            self.params[key] = params
+
+    def _collect(self) -> None:
+        from sweep.store import failure_from_exception
+
+        done = [(k, f) for k, f in self.futures.items() if f.done()]
+        if not done:
+            return
+        records = []
+        for key, fut in done:
+            self.futures.pop(key)
+            job_id = self.trigger.pop(key, None)
+            params = self.params.pop(key, None)
+            if fut.status == "finished":
+                rec = fut.result()
+            elif fut.status == "cancelled":  # lost with the scheduler, or cancelled by us
+                if key in self._needed_keys() and self.lost.get(key, 0) < MAX_LOST_RESUBMITS:
+                    self.lost[key] = self.lost.get(key, 0) + 1
+                    seq = self.con.execute("SELECT seq FROM jobs WHERE id = ?",
+                                           (job_id,)).fetchone()
+                    self._submit(job_id, seq[0] if seq else 0, {key: params})
+                    continue
+                from airpuff_core.params import RunParams
+
+                rec = failure_from_exception(self.settings.points_dir, RunParams.from_dict(params),
+                                             RuntimeError("the task was lost repeatedly"))
+            else:  # the task itself raised (e.g. KilledWorker: it crashed workers repeatedly)
+                from airpuff_core.params import RunParams
+
+                rec = failure_from_exception(self.settings.points_dir, RunParams.from_dict(params),
+                                             fut.exception())
+            fut.release()
+            records.append((key, job_id, rec))
+        if records:
+            self._record(records)
+
+    def _record(self, records) -> None:
+        now = db.now()
+        with db.write(self.con):
+            for key, job_id, rec in records:
+                computed = bool(rec.get("computed", True))
+                self.con.execute(
+                    "UPDATE points SET status = ?, message = ?, metrics_json = ?, wall_s = ?, "
+                    "computed_by = CASE WHEN ? THEN ? ELSE computed_by END, finished_at = ? "
+                    "WHERE key = ?",
+                    (rec["status"], rec.get("message") or None,
+                     json.dumps(rec.get("metrics") or {}), rec.get("wall_s"),
+                     computed, job_id, now, key))
+                self.con.execute(
+                    "UPDATE job_points SET status = ?, message = ?, "
+                    "reused = CASE WHEN job_id = ? AND ? THEN 0 ELSE 1 END "
+                    "WHERE key = ? AND status = 'pending' AND job_id IN "
+                    "(SELECT id FROM jobs WHERE status = 'running')",
+                    (rec["status"], rec.get("message") or None, job_id, computed, key))
+
+    def _finish_jobs(self) -> None:
+        from sweep.grid import SweepSpec
+        from sweep.store import write_sweep
+
+        ready = self.con.execute(
+            "SELECT id, spec_json, n_points FROM jobs j WHERE status = 'running' AND NOT EXISTS "
+            "(SELECT 1 FROM job_points p WHERE p.job_id = j.id AND p.status = 'pending') "
+            "ORDER BY seq").fetchall()
+        for job in ready:
+            job_id = job["id"]
+            counts = dict(self.con.execute(
+                "SELECT status, COUNT(*) FROM job_points WHERE job_id = ? GROUP BY status",
+                (job_id,)).fetchall())
+            try:
+                spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
+                t0 = time.perf_counter()
+                write_sweep(spec, self.settings.points_dir, self.settings.job_dataset(job_id))
+                log.info("job %s combined in %.2f s", job_id, time.perf_counter() - t0)
+            except Exception as err:  # noqa: BLE001
+                log.exception("combining job %s", job_id)
+                self._end_job(job_id, "failed", f"combining the points failed: "
+                                                f"{type(err).__name__}: {err}")
+                continue
+            if counts.get("ok", 0) == 0:
+                first = self.con.execute("SELECT message FROM job_points WHERE job_id = ? AND "
+                                         "status = 'failed' ORDER BY idx LIMIT 1",
+                                         (job_id,)).fetchone()
+                self._end_job(job_id, "failed", f"all {job['n_points']} points failed; first: "
+                                                f"{first[0] if first else 'unknown'}")
+            else:
+                self._end_job(job_id, "done", None)
+
+    def _end_job(self, job_id: str, status: str, error: str | None) -> None:
+        with db.write(self.con):
+            self.con.execute("UPDATE jobs SET status = ?, error = ?, finished_at = ? "
+                             "WHERE id = ? AND status = 'running'",
+                             (status, error, db.now(), job_id))
+        log.info("job %s %s%s", job_id, status, f": {error}" if error else "")

@@ -1,0 +1,178 @@
+"""Pydantic models of the HTTP API, generated from ``airpuff_core.params``.
+
+The units, defaults and accepted ranges of every run parameter are written once, in
+``airpuff_core.params.PARAMETERS`` / ``CHOICES`` / ``INT_PARAMETERS``; the request model below is
+built from them, so the OpenAPI schema (``/openapi.json``, ``/docs``) documents exactly what the
+solver accepts.  Swept parameters (``SWEPT``) are non-empty lists; every other parameter is a
+single value.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal, Optional
+
+from pydantic import BaseModel, ConfigDict, Field, Strict, create_model
+
+from airpuff_core.params import (
+    CHOICE_DEFAULTS,
+    CHOICE_DESCRIPTIONS,
+    CHOICES,
+    INT_PARAMETERS,
+    PARAMETERS,
+    SWEPT,
+    ParamSpec,
+)
+from airpuff_core.result import METRICS
+
+JobStatusName = Literal["queued", "running", "done", "failed", "cancelled"]
+PointStatusName = Literal["pending", "ok", "failed", "cancelled"]
+
+
+def _bounds(spec: ParamSpec) -> dict[str, float]:
+    b: dict[str, float] = {}
+    b["ge" if spec.low_inclusive else "gt"] = spec.low
+    b["le" if spec.high_inclusive else "lt"] = spec.high
+    return b
+
+
+def _unit_text(spec: ParamSpec) -> str:
+    return "dimensionless" if spec.unit in ("", "1") else spec.unit
+
+
+def _number(spec: ParamSpec) -> Any:
+    """A strict JSON number (no strings, no booleans, finite) within the parameter's range."""
+    return Annotated[float, Strict(), Field(allow_inf_nan=False, **_bounds(spec))]
+
+
+def _swept_field(spec: ParamSpec, max_points: int) -> tuple[Any, Any]:
+    desc = (f"{spec.description}. Values of the sweep axis in {_unit_text(spec)}; each "
+            f"{spec.accepted()}. A non-empty list of distinct values; default "
+            f"[{spec.default:g}].")
+    return (list[_number(spec)], Field(  # type: ignore[valid-type]
+        default_factory=lambda d=spec.default: [d], min_length=1, max_length=max_points,
+        description=desc, json_schema_extra={"x-unit": spec.unit}))
+
+
+def _option_field(spec: ParamSpec) -> tuple[Any, Any]:
+    desc = f"{spec.description} [{_unit_text(spec)}], {spec.accepted()}"
+    return (_number(spec), Field(default=spec.default, description=desc,
+                                 json_schema_extra={"x-unit": spec.unit}))
+
+
+def _choice_field(name: str) -> tuple[Any, Any]:
+    allowed = CHOICES[name]
+    return (Literal[allowed], Field(default=CHOICE_DEFAULTS[name],  # type: ignore[valid-type]
+                                    description=f"{CHOICE_DESCRIPTIONS[name]}; one of "
+                                                + ", ".join(allowed)))
+
+
+def _int_field(name: str) -> tuple[Any, Any]:
+    default, lo, hi, desc = INT_PARAMETERS[name]
+    return (Annotated[int, Strict()], Field(default=default, ge=lo, le=hi,
+                                            description=f"{desc}, an integer in [{lo}, {hi}]"))
+
+
+def sweep_request_model(max_points: int) -> type[BaseModel]:
+    """The body of ``POST /sweeps``; lists are at most ``max_points`` long (and so is the grid)."""
+    fields: dict[str, Any] = {}
+    for name in SWEPT:
+        fields[name] = _swept_field(PARAMETERS[name], max_points)
+    for name, spec in PARAMETERS.items():
+        if name not in SWEPT:
+            fields[name] = _option_field(spec)
+    for name in CHOICES:
+        fields[name] = _choice_field(name)
+    for name in INT_PARAMETERS:
+        fields[name] = _int_field(name)
+    doc = (f"A sweep over the grid E0 x IOP x thickness x pmax (at most {max_points} points). "
+           "All other parameters are single values shared by every point; omitted ones take "
+           "their defaults. Unknown keys are rejected.")
+    return create_model("SweepRequest", __config__=ConfigDict(
+        extra="forbid", json_schema_extra={"examples": [{
+            "E0": [0.4, 0.6], "IOP": [12.0, 16.0], "thickness": [0.5], "pmax": [10.0],
+            "resolution": "coarse"}]}), __doc__=doc, **fields)
+
+
+class Submitted(BaseModel):
+    id: str = Field(description="job id (use it in /sweeps/{id})")
+    status: JobStatusName = Field(description="status of the new job (queued)")
+    points_total: int = Field(description="number of grid points")
+
+
+class JobInfo(BaseModel):
+    id: str = Field(description="job id")
+    status: JobStatusName = Field(description="queued, running, done, failed or cancelled")
+    points_total: int = Field(description="number of grid points")
+    points_done: int = Field(description="points finished successfully (including reused ones)")
+    points_failed: int = Field(description="points whose simulation failed")
+    points_reused: int = Field(description="successful points taken from earlier computations")
+    created_at: str = Field(description="submission time, ISO 8601 UTC")
+    started_at: Optional[str] = Field(description="time the runner started the job, ISO 8601 UTC")
+    finished_at: Optional[str] = Field(description="time the job ended, ISO 8601 UTC")
+    error: Optional[str] = Field(description="why the job failed or was cancelled, else null")
+    request: dict[str, Any] = Field(description="the sweep as submitted, with defaults filled in")
+    links: dict[str, str] = Field(description="URLs of the job, its metrics and its dataset")
+
+
+class JobList(BaseModel):
+    jobs: list[JobInfo] = Field(description="jobs, newest first")
+    total: int = Field(description="number of jobs stored")
+
+
+def _point_record_model() -> type[BaseModel]:
+    fields: dict[str, Any] = {
+        "index": (int, Field(description="position in C order over E0, IOP, thickness, pmax")),
+        "key": (str, Field(description="content key of the point (hash of all its parameters)")),
+    }
+    for name in SWEPT:
+        s = PARAMETERS[name]
+        fields[name] = (float, Field(description=f"{s.description} [{_unit_text(s)}]"))
+    fields["status"] = (PointStatusName, Field(description="pending, ok, failed or cancelled"))
+    fields["message"] = (Optional[str], Field(description="reason of a failure, else null"))
+    fields["reused"] = (bool, Field(description="true if the result was computed earlier "
+                                                "(by this or another job) and reused"))
+    for name, (unit, long_name) in METRICS.items():
+        fields[name] = (Optional[float], Field(description=f"{long_name} [{unit}]; null when "
+                                                            "missing or not computed",
+                                               json_schema_extra={"x-unit": unit}))
+    return create_model("PointRecord", **fields)
+
+
+PointRecord = _point_record_model()
+
+
+class Metrics(BaseModel):
+    id: str = Field(description="job id")
+    status: JobStatusName = Field(description="job status")
+    units: dict[str, str] = Field(description="unit of every numeric field of the point records")
+    points: list[PointRecord] = Field(description="one record per grid point, in index order")  # type: ignore[valid-type]
+
+
+class Health(BaseModel):
+    status: Literal["ok"] = Field(description="always ok when the API answers")
+    version: str = Field(description="airpuff version")
+    runner: str = Field(description="job runner: disabled, starting, connecting, ready, stopped "
+                                    "or failed")
+    runner_error: Optional[str] = Field(default=None, description="why the runner failed")
+    workers: Optional[int] = Field(default=None, description="Dask workers connected")
+
+
+class ValidationItem(BaseModel):
+    loc: list[Any] = Field(description="where the error is, e.g. [\"body\", \"E0\", 1]")
+    field: str = Field(description="the offending request field, e.g. \"E0\"")
+    msg: str = Field(description="what is wrong and what is accepted, starting with the field")
+    type: str = Field(description="error kind")
+
+
+class ValidationProblem(BaseModel):
+    detail: list[ValidationItem]
+
+
+class Problem(BaseModel):
+    detail: str = Field(description="what went wrong")
+
+
+def units() -> dict[str, str]:
+    u = {name: PARAMETERS[name].unit for name in SWEPT}
+    u.update({name: unit for name, (unit, _) in METRICS.items()})
+    return u

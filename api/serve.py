@@ -1,0 +1,146 @@
+"""`airpuff serve`: the HTTP API under uvicorn, with the job runner that owns the Dask client.
+
+    airpuff serve [--host 127.0.0.1] [--port 8000] [--data-dir DIR] [--workers 2 | --scheduler ADDR]
+
+One process: uvicorn serves the FastAPI app; the app's lifespan starts the runner thread, which
+starts a LocalCluster of worker processes (or joins ``--scheduler``).  SIGINT/SIGTERM stop the
+server, the runner and the cluster; jobs still running are resumed by the next server started on
+the same data directory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import logging
+import socket
+import sys
+from pathlib import Path
+
+from airpuff_core.cli import fail
+
+from .settings import DEFAULT_MAX_POINTS, TOKEN_ENV, Settings
+
+PROG = "airpuff serve"
+
+
+def add_serve_parser(sub) -> None:
+    p = sub.add_parser("serve", help="serve parameter sweeps over HTTP", description=(
+        "Start the HTTP API (FastAPI under uvicorn) and the job runner that owns the Dask "
+        f"cluster. When {TOKEN_ENV} is set, every endpoint except /health requires "
+        "'Authorization: Bearer <token>'. API documentation: /docs and /openapi.json."))
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default 127.0.0.1, this machine only)")
+    p.add_argument("--port", default="8000", help="TCP port (default 8000; 0 picks a free one)")
+    p.add_argument("--data-dir", default="airpuff-data", metavar="DIR",
+                   help="folder of the job database (airpuff.db) and the netCDF results "
+                        "(default ./airpuff-data)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", default=None, metavar="N",
+                   help="local Dask worker processes, one thread each (default 2)")
+    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of "
+                        "local workers; its workers must see DIR")
+    p.add_argument("--max-points", default=str(DEFAULT_MAX_POINTS), metavar="N",
+                   help=f"largest grid a request may ask for (default {DEFAULT_MAX_POINTS})")
+    p.add_argument("--no-runner", action="store_true",
+                   help="serve the API only: jobs are stored and stay queued until a server "
+                        "with a runner is started on the same data directory")
+    p.add_argument("--log-level", default="info",
+                   choices=("critical", "error", "warning", "info", "debug"),
+                   help="log level (default info)")
+    p.set_defaults(func=serve_command)
+
+
+def _int(name: str, text: str, lo: int, hi: int) -> int:
+    try:
+        v = int(str(text).strip())
+    except ValueError:
+        v = None
+    if v is None or not lo <= v <= hi:
+        fail(PROG, ValueError(f"invalid {name}={text!r}: accepted an integer in [{lo}, {hi}]"))
+    return v
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def serve_command(args: argparse.Namespace) -> int:
+    port = _int("--port", args.port, 0, 65535)
+    max_points = _int("--max-points", args.max_points, 1, 10**9)
+    workers = 2 if args.workers is None else _int("--workers", args.workers, 1, 1024)
+    data_dir = Path(args.data_dir)
+    try:
+        data_dir.mkdir(parents=True, exist_ok=True)
+        probe = data_dir / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        fail(PROG, ValueError(f"invalid --data-dir={args.data_dir!r}: accepted a writable "
+                              f"folder ({err.strerror})"))
+    settings = Settings.from_env(data_dir.resolve(), max_points=max_points, workers=workers,
+                                 scheduler=args.scheduler, run_jobs=not args.no_runner)
+
+    logging.basicConfig(level=args.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if args.log_level != "debug":  # Dask's own INFO lines drown the service's
+        logging.getLogger("distributed").setLevel(logging.WARNING)
+    lock = None
+    if settings.run_jobs:
+        from .runner import RunnerLocked, acquire_runner_lock
+
+        try:
+            lock = acquire_runner_lock(settings.data_dir)
+        except RunnerLocked as err:
+            sys.stderr.write(f"{PROG}: error: {err}\n")
+            return 1
+
+    # Bind before anything starts, so a busy port is reported at once (and --port 0 works).
+    try:
+        family = socket.AF_INET6 if ":" in args.host else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((args.host, port))
+        sock.listen(128)
+        sock.set_inheritable(False)
+    except (OSError, OverflowError) as err:
+        sys.stderr.write(f"{PROG}: error: cannot listen on {args.host}:{port}: {err}\n")
+        return 1
+    actual_port = sock.getsockname()[1]
+    if not _is_loopback(args.host) and not settings.token:
+        sys.stderr.write(f"{PROG}: warning: listening on {args.host} without {TOKEN_ENV}: "
+                         "anyone who can reach this port can submit jobs\n")
+
+    import uvicorn
+
+    from .app import create_app
+
+    app = create_app(settings)
+    host_text = f"[{args.host}]" if ":" in args.host else args.host
+    sys.stderr.write(f"{PROG}: listening on http://{host_text}:{actual_port} "
+                     f"(data dir {settings.data_dir}, "
+                     f"{'runner off' if not settings.run_jobs else (settings.scheduler or f'{workers} local workers')}"
+                     f"{', token required' if settings.token else ''})\n")
+    sys.stderr.flush()
+    config = uvicorn.Config(app, log_level=args.log_level, lifespan="on", access_log=False,
+                            timeout_graceful_shutdown=10)
+    server = uvicorn.Server(config)
+    try:
+        server.run(sockets=[sock])
+    finally:
+        sock.close()
+        if lock is not None:
+            lock.close()
+    return 0 if server.started else 1
+
+
+if __name__ == "__main__":  # python -m api.serve ... (same as `airpuff serve ...`)
+    from .cli import main
+
+    sys.exit(main(["serve", *sys.argv[1:]]))

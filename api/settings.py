@@ -1,0 +1,44 @@
+"""Settings of the HTTP service (one data directory holds the database and all netCDF files)."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+TOKEN_ENV = "AIRPUFF_API_TOKEN"
+DEFAULT_MAX_POINTS = 10_000
+
+
+@dataclass(frozen=True)
+class Settings:
+    data_dir: Path
+    max_points: int = DEFAULT_MAX_POINTS
+    token: str | None = None  # bearer token required on every endpoint but /health when set
+    workers: int = 2  # local Dask worker processes (ignored when scheduler is given)
+    scheduler: str | None = None  # address of an existing Dask scheduler
+    run_jobs: bool = True  # False: API only, jobs stay queued until a runner picks them up
+    poll_interval: float = 0.25  # s, runner loop period
+    retries: int = 2  # Dask retries of a point whose worker died
+    max_body_bytes: int = 1_000_000
+
+    @classmethod
+    def from_env(cls, data_dir, **kw) -> "Settings":
+        token = os.environ.get(TOKEN_ENV) or None
+        return cls(data_dir=Path(data_dir), token=token, **kw)
+
+    @property
+    def db_path(self) -> Path:
+        return self.data_dir / "airpuff.db"
+
+    @property
+    def points_dir(self) -> Path:
+        """Shared by all jobs: identical points (same key) are computed once."""
+        return self.data_dir / "points"
+
+    @property
+    def jobs_dir(self) -> Path:
+        return self.data_dir / "jobs"
+
+    def job_dataset(self, job_id: str) -> Path:
+        return self.jobs_dir / job_id / "sweep.nc"
