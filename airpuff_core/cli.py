@@ -44,8 +44,9 @@ def add_run_options(parser: argparse.ArgumentParser, swept: bool = True) -> None
                             default=None,
                             help=f"{s.description} [{s.unit}], {s.accepted()}, default {s.default:g}")
     for name, allowed in CHOICES.items():
+        text = CHOICE_DESCRIPTIONS[name].replace("%", "%%")  # argparse formats help with %
         parser.add_argument(flag(name), dest=name, default=None, metavar="|".join(allowed),
-                            help=f"{CHOICE_DESCRIPTIONS[name]} (default {CHOICE_DEFAULTS[name]})")
+                            help=f"{text} (default {CHOICE_DEFAULTS[name]})")
 
 
 def params_from_args(args: argparse.Namespace, **overrides) -> RunParams:

@@ -42,6 +42,10 @@ class Operators:
         """
         if active is None:
             status = build_neighbours(x, y, self.h, self.kappa, self.nbr, self.mirrored, self.count)
+            if status < 0:
+                raise SimulationError(
+                    "fluid blew up: node positions are not finite"
+                    + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms, "blow-up")
             if status:
                 raise SimulationError(
                     f"node {status - 1} has more than {MAX_NEIGHBOURS} neighbours"

@@ -234,6 +234,9 @@ class CoupledModel:
             change = np.linalg.norm(p_new - p_est) / norm
             scale_p = max(np.linalg.norm(p_est - p0) / norm, P_REF)
             residual = change / scale_p
+            if not math.isfinite(residual):
+                raise SimulationError(f"fluid-structure system blew up at t = {t_ms:.4f} ms: the "
+                                      f"interface pressure is not finite", t_ms, "blow-up")
             p_est = p_new
             if it >= 2 and residual < si["tol"]:
                 break

@@ -105,6 +105,14 @@ def test_coupling_cap_is_an_error_naming_the_time():
                            t_end=0.1))
 
 
+def test_blow_up_is_an_error_not_a_crash():
+    """An absurdly soft, thin cornea blows up at once: twice in one process, a clear error each
+    time (non-finite positions must never reach the cell list)."""
+    for _ in range(2):
+        with pytest.raises(SimulationError, match="blew up|did not converge"):
+            simulate(RunParams(thickness=0.001, E0=0.001, t_end=1.0))
+
+
 def test_missing_applanation_is_null_in_json(tmp_path):
     proc = airpuff("run", "--t-end", "3", "--json")
     assert proc.returncode == 0, proc.stderr

@@ -19,8 +19,12 @@ AXIS_EPS = 1e-12  # m: a node with x below this lies on the axis (its image is i
 
 @njit(cache=True)
 def build_neighbours(x, y, h, kappa, nbr, mirrored, count):
-    """Fill the neighbour table.  Returns 0, or i+1 for the first node whose table overflows."""
+    """Fill the neighbour table.  Returns 0, i+1 for the first node whose table overflows, or -1
+    when a position is not finite (a blown-up state must not index cells out of range)."""
     n = x.shape[0]
+    for i in range(n):
+        if not (np.isfinite(x[i]) and np.isfinite(y[i])):
+            return -1
     maxn = nbr.shape[1]
     hmax = 0.0
     xmin = x[0]

@@ -1,0 +1,129 @@
+"""`airpuff sweep`: a grid of runs on Dask, stored as netCDF.
+
+    airpuff sweep --E0 0.3,0.5,0.7 --IOP 10:25:4 --resolution coarse --out results/
+
+Axes are given as a comma list or start:stop:num, in the units of `airpuff run` (E0 MPa, IOP mmHg,
+thickness mm, pmax kPa); an axis left out takes the parameter's default.  Every other option of
+`airpuff run` applies to all points.  Re-running the same command into the same --out folder
+computes only the points that are missing.
+
+Exit codes: 0 every point ok; 1 the sweep finished but some points failed (see the table and
+sweep.nc); 2 bad input (one line on stderr naming the parameter and accepted range);
+130 interrupted (finished points stay stored).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+
+from airpuff_core.cli import RUN_OPTIONS, add_run_options, fail
+from airpuff_core.params import CHOICES, PARAMETERS, SWEPT, ParameterError
+
+from .grid import AXIS_SYNTAX
+
+PROG = "airpuff sweep"
+DEFAULT_OUT = "sweep_out"
+
+
+def add_sweep_parser(sub) -> None:
+    """Register the ``sweep`` sub-command on the ``airpuff`` parser (called by ``api/cli.py``)."""
+    p = sub.add_parser("sweep", help="run a parameter sweep on Dask", description=(
+        "Run a grid over E0 x IOP x thickness x pmax on a Dask cluster; each point is stored as "
+        "its own netCDF file, and all are combined into OUT/sweep.nc. Re-running the same sweep "
+        "into the same OUT computes only the missing points."))
+    for name in SWEPT:
+        s = PARAMETERS[name]
+        p.add_argument("--" + name, dest=name, metavar="LIST", default=None,
+                       help=f"{s.description} [{s.unit}]: {AXIS_SYNTAX}; each value "
+                            f"{s.accepted()}; default {s.default:g}")
+    add_run_options(p, swept=False)
+    _escape_percent(p)
+    p.add_argument("--workers", default="2", metavar="N",
+                   help="number of local worker processes, one thread each (default 2)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="use the Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of "
+                        "starting local workers; workers must share the file system")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"folder for the point files and sweep.nc (default {DEFAULT_OUT})")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="re-run points stored as failed (by default they keep their recorded failure)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (counts and the path of sweep.nc) instead of the table")
+    p.set_defaults(func=sweep_command)
+
+
+def _escape_percent(parser) -> None:
+    """argparse %-formats help strings; a literal '%' in a shared option description (e.g.
+    "0.19 % jet") would make --help crash, so lone '%' signs are doubled ('%%' and '%(...)s'
+    are left alone)."""
+    for action in parser._actions:
+        if action.help:
+            action.help = re.sub(r"%%|%(?!\()", lambda m: "%%" if m.group() == "%" else m.group(),
+                                 action.help)
+
+
+def spec_from_args(args):
+    """The SweepSpec of parsed arguments; raises ParameterError on any bad value."""
+    from .grid import SweepSpec, parse_axis
+
+    axes = {}
+    for name in SWEPT:
+        text = getattr(args, name, None)
+        if text is not None:
+            axes[name] = parse_axis(name, text)
+    options = {}
+    for name in list(RUN_OPTIONS) + list(CHOICES):
+        v = getattr(args, name, None)
+        if v is not None:
+            options[name] = v
+    return SweepSpec(**axes, options=options).validate()
+
+
+def _workers(text) -> int:
+    try:
+        n = int(str(text))
+    except ValueError:
+        raise ParameterError("workers", text, "a whole number >= 1") from None
+    if n < 1:
+        raise ParameterError("workers", text, "a whole number >= 1")
+    return n
+
+
+def sweep_command(args) -> int:
+    from .report import SweepProgress, summary_table
+    from .runner import run_sweep
+
+    try:
+        spec = spec_from_args(args)
+        workers = _workers(args.workers)
+    except ParameterError as err:
+        fail(PROG, err)
+    progress = None if args.json else SweepProgress()
+    try:
+        outcome = run_sweep(spec, args.out, workers=workers, scheduler=args.scheduler,
+                            progress=progress, retry_failed=args.retry_failed)
+    except KeyboardInterrupt:
+        if progress:
+            progress.close()
+        sys.stderr.write(f"{PROG}: interrupted; finished points are stored in {args.out}; "
+                         "run the same command again to resume\n")
+        return 130
+    except (OSError, TimeoutError) as err:  # e.g. no scheduler at --scheduler, unwritable --out
+        if progress:
+            progress.close()
+        sys.stderr.write(f"{PROG}: error: {' '.join(str(err).split())}\n")
+        return 1
+    if progress:
+        progress.close()
+    for w in outcome.warnings:
+        sys.stderr.write(f"{PROG}: warning: {w}\n")
+    if args.json:
+        sys.stdout.write(json.dumps({
+            "path": str(outcome.path), "n_points": outcome.n_points, "ok": outcome.ok,
+            "failed": outcome.failed, "computed": outcome.computed, "reused": outcome.reused,
+            "wall_s": outcome.wall_s}) + "\n")
+    else:
+        print(summary_table(outcome))
+    return 1 if outcome.failed else 0

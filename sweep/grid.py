@@ -1,0 +1,207 @@
+"""The parameter grid of a sweep: four axes (E0, IOP, thickness, pmax) and the common run options.
+
+Everything here is in the user units of ``airpuff run`` (MPa, mmHg, mm, kPa; see
+``airpuff_core.params.PARAMETERS``).  This module only describes *which* runs a sweep consists of;
+running them is ``sweep.runner``'s job and storing them ``sweep.store``'s.
+
+Interface used by the HTTP API (issue 5) -- keep these names:
+
+* ``parse_axis(name, text) -> list[float]``
+* ``SweepSpec(E0=[...], IOP=[...], thickness=[...], pmax=[...], options={...})`` with
+  ``points()``, ``n_points``, ``shape``, ``validate()``, ``run_options()``, ``to_dict()``,
+  ``SweepSpec.from_dict(d)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from airpuff_core.params import PARAMETERS, SWEPT, ParameterError, RunParams
+
+# Grid values are rounded to this many significant digits, so that "0.1:0.3:3" gives exactly
+# [0.1, 0.2, 0.3] and not 0.30000000000000004: the values end up in netCDF coordinates, in
+# point keys (a resume must find the same keys) and in users' .sel() calls.
+SIGNIFICANT_DIGITS = 12
+
+AXIS_SYNTAX = "a comma list of numbers (e.g. 0.3,0.5,0.7) or start:stop:num (e.g. 10:30:5)"
+
+
+def _round(x: float) -> float:
+    return float(f"{x:.{SIGNIFICANT_DIGITS}g}")
+
+
+def _number(name: str, token: str, whole: str) -> float:
+    try:
+        x = float(token)
+    except ValueError:
+        raise ParameterError(name, whole, AXIS_SYNTAX) from None
+    if not math.isfinite(x):
+        raise ParameterError(name, whole, AXIS_SYNTAX)
+    return x
+
+
+def parse_axis(name: str, text: str) -> list[float]:
+    """Values of one swept parameter from the command-line syntax, in the parameter's user unit.
+
+    ``text`` is either a comma list (``"0.3,0.5,0.7"``) or ``start:stop:num`` (``"10:30:5"`` gives
+    10, 15, 20, 25, 30: both ends included, ``num`` >= 1, and ``num`` = 1 needs start = stop).
+    Each value is range-checked against ``PARAMETERS[name]``.  Raises :class:`ParameterError`
+    (one-line message naming ``name`` and the accepted syntax or range) on any bad input,
+    including an empty list and duplicate values.
+    """
+    if name not in SWEPT:
+        raise ParameterError("axis", name, "one of " + ", ".join(SWEPT))
+    text = str(text).strip()
+    if not text:
+        raise ParameterError(name, text, AXIS_SYNTAX)
+    if ":" in text:
+        parts = text.split(":")
+        if len(parts) != 3:
+            raise ParameterError(name, text, AXIS_SYNTAX)
+        start = _number(name, parts[0].strip(), text)
+        stop = _number(name, parts[1].strip(), text)
+        try:
+            num = int(parts[2].strip())
+        except ValueError:
+            raise ParameterError(name, text, "start:stop:num with num a whole number >= 1") from None
+        if num < 1 or (num == 1 and start != stop):
+            raise ParameterError(name, text, "start:stop:num with num >= 2 (num = 1 only if start = stop)")
+        values = [_round(v) for v in np.linspace(start, stop, num)]
+    else:
+        tokens = [t.strip() for t in text.split(",")]
+        if any(t == "" for t in tokens):
+            raise ParameterError(name, text, AXIS_SYNTAX)
+        values = [_round(_number(name, t, text)) for t in tokens]
+    spec = PARAMETERS[name]
+    values = [spec.check(v) for v in values]
+    _check_unique(name, values)
+    return values
+
+
+def _check_unique(name: str, values: list[float]) -> None:
+    if len(set(values)) != len(values):
+        dup = sorted({v for v in values if values.count(v) > 1})
+        raise ParameterError(name, dup[0] if len(dup) == 1 else dup, "distinct values (no duplicates)")
+
+
+def _default_axis(name: str):
+    return lambda: [PARAMETERS[name].default]
+
+
+@dataclass
+class SweepSpec:
+    """A full-factorial grid over the four swept parameters plus the options common to all runs.
+
+    Fields (all user units, as in ``airpuff run``):
+
+    * ``E0`` [MPa], ``IOP`` [mmHg], ``thickness`` [mm], ``pmax`` [kPa]: lists of floats; each
+      defaults to the single default value of that parameter.
+    * ``options``: every other ``RunParams`` field that differs from its default, e.g.
+      ``{"resolution": "coarse", "t_end": 35.0}``.  Swept names are not allowed here.
+
+    ``points()`` lists the runs in C order over (E0, IOP, thickness, pmax): the last axis varies
+    fastest, matching the layout of the combined ``sweep.nc``.
+    """
+
+    E0: list = field(default_factory=_default_axis("E0"))
+    IOP: list = field(default_factory=_default_axis("IOP"))
+    thickness: list = field(default_factory=_default_axis("thickness"))
+    pmax: list = field(default_factory=_default_axis("pmax"))
+    options: dict = field(default_factory=dict)
+
+    # -- shape ---------------------------------------------------------------------------------
+    def axes(self) -> dict[str, list[float]]:
+        """Swept name -> list of values, in the dimension order of ``sweep.nc``."""
+        return {name: list(getattr(self, name)) for name in SWEPT}
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        return tuple(len(getattr(self, name)) for name in SWEPT)
+
+    @property
+    def n_points(self) -> int:
+        return int(np.prod(self.shape))
+
+    # -- validation ----------------------------------------------------------------------------
+    def validate(self) -> "SweepSpec":
+        """Check the whole sweep before anything is submitted; returns ``self``.
+
+        Every axis must hold at least one number within its parameter's range and no
+        duplicates; ``options`` must name known, non-swept parameters with valid values; and
+        every point must be a valid ``RunParams`` (cross-checks such as r_post < R included).
+        Values are normalised to floats in place.  Raises :class:`ParameterError` naming the field.
+        """
+        for name in SWEPT:
+            values = getattr(self, name)
+            if isinstance(values, (int, float)) and not isinstance(values, bool):
+                values = [values]
+            if isinstance(values, (str, bytes)) or not hasattr(values, "__iter__"):
+                raise ParameterError(name, values, "a non-empty list of numbers")
+            values = list(values)
+            if not values:
+                raise ParameterError(name, values, "a non-empty list of numbers")
+            spec = PARAMETERS[name]
+            values = [_round(spec.check(v)) for v in values]
+            _check_unique(name, values)
+            setattr(self, name, values)
+        if not isinstance(self.options, Mapping):
+            raise ParameterError("options", self.options, "a mapping of run option names to values")
+        # None means "the default" (what a form or JSON body sends for an option left empty).
+        self.options = {k: v for k, v in self.options.items() if v is not None}
+        for name in self.options:
+            if name in SWEPT:
+                raise ParameterError(name, self.options[name],
+                                     "a swept parameter: give it as an axis, not as an option")
+        # A RunParams built from the options validates them with the usual one-line messages;
+        # its normalised values (floats, not the strings a command line gives) are kept.
+        base = RunParams.from_dict(dict(self.options))
+        self.options = {k: getattr(base, k) for k in self.options}
+        for p in self.points():  # cheap (microseconds per point) and catches cross-field limits
+            p.validate()
+        return self
+
+    # -- the runs ------------------------------------------------------------------------------
+    def points(self) -> list[RunParams]:
+        """One ``RunParams`` per grid point, C order over (E0, IOP, thickness, pmax)."""
+        base = dict(self.options)
+        return [RunParams.from_dict({**base, "E0": e, "IOP": i, "thickness": h, "pmax": p})
+                for e in self.E0 for i in self.IOP for h in self.thickness for p in self.pmax]
+
+    def index_of(self, params: RunParams) -> tuple[int, int, int, int]:
+        """Grid index (iE0, iIOP, ithickness, ipmax) of a point of this sweep."""
+        return tuple(list(getattr(self, n)).index(getattr(params, n)) for n in SWEPT)
+
+    def run_options(self) -> dict[str, Any]:
+        """All non-swept run parameters with defaults filled in (what every point shares)."""
+        d = RunParams.from_dict(dict(self.options)).to_dict()
+        for name in SWEPT:
+            d.pop(name)
+        return d
+
+    # -- (de)serialisation ---------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form: ``{"E0": [...], "IOP": [...], "thickness": [...], "pmax": [...],
+        "options": {...}}`` (user units)."""
+        d: dict[str, Any] = {name: [float(v) for v in getattr(self, name)] for name in SWEPT}
+        d["options"] = dict(self.options)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "SweepSpec":
+        """Inverse of :meth:`to_dict`; also accepts a single number for an axis.  Missing axes
+        take the parameter's default; unknown top-level keys raise ParameterError.  The result
+        is validated."""
+        known = set(SWEPT) | {"options"}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ParameterError(unknown[0], d[unknown[0]], "one of " + ", ".join(sorted(known)))
+        kwargs: dict[str, Any] = {}
+        for name in SWEPT:
+            if name in d:
+                kwargs[name] = d[name]
+        kwargs["options"] = dict(d.get("options") or {})
+        return cls(**kwargs).validate()

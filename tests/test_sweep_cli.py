@@ -1,0 +1,92 @@
+"""`airpuff sweep` as a user runs it: a separate process, interrupted with Ctrl-C, then resumed.
+
+Runs after test_sweep_dask.py has shut its cluster down (modules run one after the other), so
+only one Dask cluster exists at a time.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import xarray as xr
+
+from sweep.grid import SweepSpec
+from sweep.store import point_key, point_path
+
+ARGS = ["--E0", "0.4,0.6", "--IOP", "12:20:3", "--resolution", "coarse", "--t-end", "3",
+        "--workers", "2"]
+
+
+def airpuff(*args):
+    return [sys.executable, "-m", "api.cli", *args]
+
+
+def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
+    out = tmp_path / "sweep"
+    spec = SweepSpec(E0=[0.4, 0.6], IOP=[12.0, 16.0, 20.0],
+                     options={"resolution": "coarse", "t_end": 3.0}).validate()
+    files = [point_path(out / "points", point_key(p)) for p in spec.points()]
+
+    proc = subprocess.Popen(airpuff("sweep", *ARGS, "--out", str(out)), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and not any(f.exists() for f in files):
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)  # what Ctrl-C does
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "run the same command again to resume" in err
+    stored = {f for f in files if f.exists()}
+    assert 1 <= len(stored) < len(files)  # interrupted in the middle
+    mtimes = {f: f.stat().st_mtime_ns for f in stored}
+
+    done = subprocess.run(airpuff("sweep", *ARGS, "--out", str(out), "--json"),
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)  # exactly one JSON object on stdout
+    assert report["computed"] == len(files) - len(stored)
+    assert report["reused"] == len(stored) and report["failed"] == 0
+    assert all(f.exists() for f in files)
+    assert {f: f.stat().st_mtime_ns for f in stored} == mtimes  # finished points not rewritten
+    with xr.open_dataset(report["path"]) as ds:
+        assert (ds["status"].values == "ok").all() and ds.sizes["IOP"] == 3
+
+    # a third run has nothing to do: no cluster, and the summary table says so
+    again = subprocess.run(airpuff("sweep", *ARGS, "--out", str(out)), capture_output=True,
+                           text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert "6 points: 6 ok, 0 failed; 0 computed now, 6 already stored" in again.stdout
+    assert f"wrote {out / 'sweep.nc'}" in again.stdout
+    for p in spec.points():  # one table row per point
+        assert any(line.split()[:2] == [f"{p.E0:g}", f"{p.IOP:g}"] for line in again.stdout.splitlines())
+
+
+def test_demo_and_analysis_scripts_on_a_stored_sweep(tmp_path):
+    """examples/analyze_sweep.py reads a sweep.nc with plain xarray and writes its figure."""
+    out = tmp_path / "s"
+    run = subprocess.run(airpuff("sweep", "--E0", "0.4,0.6", "--IOP", "12,20", "--resolution",
+                                 "coarse", "--t-end", "3", "--out", str(out), "--json"),
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    script = os.path.join(os.path.dirname(__file__), os.pardir, "examples", "analyze_sweep.py")
+    res = subprocess.run([sys.executable, script, str(out / "sweep.nc"), "--out", str(tmp_path / "s.png")],
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "s.png").stat().st_size > 10_000
+    assert "elasticity" in res.stdout and "E0" in res.stdout
+
+    from sweep.plots import plot_metrics_vs_iop
+
+    with xr.open_dataset(out / "sweep.nc") as ds:
+        png = plot_metrics_vs_iop(ds.load(), tmp_path / "m.png")
+    assert png.stat().st_size > 10_000
