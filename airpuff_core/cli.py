@@ -18,6 +18,7 @@ from .params import CHOICE_DEFAULTS, CHOICE_DESCRIPTIONS, CHOICES, PARAMETERS, P
 RUN_OPTIONS = (
     "R", "r_post", "alpha0", "rho_cornea", "rho_fluid", "mu", "nu", "fung_k", "a", "b", "T", "t0",
     "tait_gamma", "c0", "c_slope", "coupling_tol", "t_end", "hyperviscosity", "output_interval",
+    "cfl",
 )
 
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SimulationError
-from .kernels.mfpm import brookshaw_laplacian, compute_weights, hyperviscous_term, near_nodes
+from .kernels.mfpm import (brookshaw_laplacian, compute_weights, hyperviscous_increment,
+                           hyperviscous_term, near_nodes)
 from .kernels.neighbours import build_neighbours
 
 MAX_NEIGHBOURS = 128
@@ -78,6 +79,12 @@ class Operators:
     def hyperviscous(self, f, parity, scale, work1, work2, out):
         hyperviscous_term(f, parity, self.nbr, self.mirrored, self.count, self.lap_b, scale,
                           work1, work2, out)
+        return out
+
+    def hyperviscous_increment(self, f, parity, pinned, scale, dt, n_sub, work, out):
+        """out = change of f over dt under scale * L^3 (n_sub sub-steps, pinned nodes fixed)."""
+        hyperviscous_increment(f, parity, pinned, self.nbr, self.mirrored, self.count, self.lap_b,
+                               scale, dt, n_sub, work[0], work[1], work[2], work[3], out)
         return out
 
     def hyperviscous_spectral_radius(self, scale, start=None, iterations=60):

@@ -89,7 +89,7 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("mu", "Pa s", 7.5e-4, 0.0, 10.0, "viscosity of the aqueous humour", low_inc=True),
         _p("nu", "1", 0.5, -0.99, 0.99, "Poisson-type coupling of the membrane law", low_inc=True,
            high_inc=True),
-        _p("fung_k", "1", 1.0, 0.0, 1000.0, "exponent of the Fung strain energy", low_inc=True),
+        _p("fung_k", "1", 240.0, 0.0, 1000.0, "exponent of the Fung strain energy", low_inc=True),
         _p("a", "1", 21.5, 0.0, 1000.0, "spatial decay of the air jet, eq. (11)", low_inc=True),
         _p("b", "1", 25.0, 0.0, 1000.0, "temporal decay of the air jet, eq. (11)"),
         _p("T", "ms", 30.0, 0.0, 10000.0, "duration scale of the air jet, eq. (11)"),
@@ -103,6 +103,8 @@ PARAMETERS: dict[str, ParamSpec] = {
            "strength gamma of the stabilising hyperviscosity gamma c h^5 L^3 (0 switches it off)",
            low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
+        _p("cfl", "1", 0.4, 0.0, 0.6,
+           "acoustic CFL number: dt = cfl * h_min / (c + v_max) (stable to 0.72 at rest)"),
     ]
 }
 
@@ -170,6 +172,7 @@ class RunParams:
     t_end: float = PARAMETERS["t_end"].default
     hyperviscosity: float = PARAMETERS["hyperviscosity"].default
     output_interval: float = PARAMETERS["output_interval"].default
+    cfl: float = PARAMETERS["cfl"].default
     resolution: str = CHOICE_DEFAULTS["resolution"]
     geometry: str = CHOICE_DEFAULTS["geometry"]
     layout: str = CHOICE_DEFAULTS["layout"]
@@ -249,6 +252,7 @@ class RunParams:
             "t_end": self.t_end * 1e-3,
             "hyperviscosity": self.hyperviscosity,
             "output_interval": self.output_interval * 1e-3,
+            "cfl": self.cfl,
         }
 
 

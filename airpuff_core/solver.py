@@ -28,7 +28,7 @@ import numpy as np
 from .errors import SimulationError
 from .fluid import Operators
 from .geometry import build_chamber, chamber_volume
-from .kernels.fluid import (CORNEA, advance_density, advance_velocity, max_speed, tait_pressure,
+from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity, max_speed, tait_pressure,
                             velocity_derivatives)
 from .kernels.mfpm import derivatives
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
@@ -38,7 +38,6 @@ from .params import MMHG_PA, RunParams
 from .result import SNAPSHOT_LABELS, RunResult
 
 KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
-ACOUSTIC_CFL = 0.3  # dt <= ACOUSTIC_CFL * h_min / (c + v_max)
 HV_SAFETY = 1.4  # dt <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2, unstable at 2.0 (measured)
 HV_POWER_ITERATIONS = 2  # power iterations per step, warm-started (the mode changes slowly)
 HV_MARGIN = 1.1  # a warm-started power iteration may underestimate the radius slightly
@@ -117,6 +116,11 @@ class CoupledModel:
                                             "p_half", "vx_new", "vy_new", "x_new", "y_new",
                                             "rho_new", "div_new", "x_half", "y_half")}
         self._grad_p = np.zeros((n, 5))
+        self._hv_work = [np.empty(n) for _ in range(4)]
+        self.pinned_none = np.zeros(n, np.bool_)
+        self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
+        self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
+        self.last_hv_substeps = 0
         self._dvx_new = np.zeros((n, 5))
         self._dvy_new = np.zeros((n, 5))
         N = X.shape[0]
@@ -133,7 +137,7 @@ class CoupledModel:
         """dt [s] from the acoustic CFL condition and the hyperviscosity's stability limit."""
         si = self.si
         vmax = max_speed(self.vx, self.vy)
-        dt_ac = ACOUSTIC_CFL * self.h_min / (self.c + vmax)
+        dt_ac = si["cfl"] * self.h_min / (self.c + vmax)
         gamma = si["hyperviscosity"]
         if gamma > 0:
             # the stiffest hyperviscous mode moves with the nodes: refresh the estimate
@@ -144,7 +148,7 @@ class CoupledModel:
         else:
             dt_hv = math.inf
         self.dt_limits = {"acoustic": dt_ac, "hyperviscosity": dt_hv}
-        return min(dt_ac, dt_hv)
+        return dt_ac
 
     def refresh_derivatives(self):
         """Recompute the operators and velocity derivatives at the current state (after the state
@@ -159,8 +163,9 @@ class CoupledModel:
         w = self._w
         self.c = c = sound_speed(self.params.c_rule, si["c0"], si["c_slope"], self.v_prev,
                                  self.v_running)
+        dt_stable = self.time_step()  # also refreshes the hyperviscous limit used below
         if dt is None:
-            dt = self.time_step()
+            dt = dt_stable
         if t_stop is not None and self.t + dt > t_stop:
             dt = max(t_stop - self.t, 1e-12)
         self.dt = dt
@@ -180,9 +185,20 @@ class CoupledModel:
         gamma = si["hyperviscosity"]
         scale = gamma * c * self.hv_scale_unit
         if gamma > 0:
-            ops_n.hyperviscous(self.rho, 1.0, scale, w["w1"], w["w2"], w["hv_rho"])
-            ops_n.hyperviscous(self.vx, -1.0, scale, w["w1"], w["w2"], w["hv_vx"])
-            ops_n.hyperviscous(self.vy, 1.0, scale, w["w1"], w["w2"], w["hv_vy"])
+            # HV is stiff: sub-cycle it within the step (its increments, divided by dt, enter
+            # the updates below as rates)
+            n_hv = max(1, int(math.ceil(dt / self.dt_limits["hyperviscosity"])))
+            self.last_hv_substeps = n_hv
+            work = self._hv_work
+            ops_n.hyperviscous_increment(self.rho, 1.0, self.pinned_none, scale, dt, n_hv, work,
+                                         w["hv_rho"])
+            ops_n.hyperviscous_increment(self.vx, -1.0, self.pinned_vx, scale, dt, n_hv, work,
+                                         w["hv_vx"])
+            ops_n.hyperviscous_increment(self.vy, 1.0, self.pinned_vy, scale, dt, n_hv, work,
+                                         w["hv_vy"])
+            w["hv_rho"] /= dt
+            w["hv_vx"] /= dt
+            w["hv_vy"] /= dt
         else:
             w["hv_rho"][:] = 0.0
             w["hv_vx"][:] = 0.0
@@ -342,6 +358,7 @@ def simulate(params: RunParams, progress=None) -> RunResult:
     dts = []
     max_residual = 0.0
     substeps = []
+    hv_substeps = []
     vol0 = prev["chamber_volume"]
     dens_vol0 = model.density_volume()
     max_vol_mismatch = 0.0
@@ -354,6 +371,7 @@ def simulate(params: RunParams, progress=None) -> RunResult:
         iters.append(model.last_iterations)
         dts.append(dt)
         substeps.append(model.last_substeps)
+        hv_substeps.append(model.last_hv_substeps)
         max_residual = max(max_residual, model.last_residual)
         cur = model.probe()
         t = model.t
@@ -414,6 +432,7 @@ def simulate(params: RunParams, progress=None) -> RunResult:
         "max_coupling_iterations": int(np.max(iters)) if iters else 0,
         "max_coupling_residual": float(max_residual),
         "mean_membrane_substeps": float(np.mean(substeps)) if substeps else 0.0,
+        "mean_hyperviscous_substeps": float(np.mean(hv_substeps)) if hv_substeps else 0.0,
         "wall_s": wall,
         "prestretch": model.membrane.lambda0,
         "R_ref_mm": model.membrane.R_ref * 1e3,
@@ -425,7 +444,7 @@ def simulate(params: RunParams, progress=None) -> RunResult:
         "mass_kg": float(model.mass.sum()),
         "kappa_support": KAPPA,
         "apex_fit_nodes": model.n_apex_fit,
-        "acoustic_cfl": ACOUSTIC_CFL,
+        "acoustic_cfl": si["cfl"],
     }
     diagnostics.update(extra)
     return RunResult(params=params, time=out_t * 1e3, histories=hist, snapshot_time=snapshot_time,

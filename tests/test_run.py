@@ -99,6 +99,15 @@ def test_tighter_coupling_tolerance_changes_no_metric(coarse_run):
         assert abs(tight[k] - m[k]) < 0.01, (k, tight[k], m[k])
 
 
+def test_halving_the_time_step_changes_no_metric(coarse_run):
+    """The answers do not depend on the step size the speed-ups chose (stated tolerance:
+    0.05 mmHg for pressures, 0.05 ms for times, 0.005 mm for DA)."""
+    m, _ = coarse_run
+    fine_dt = simulate(RunParams(resolution="coarse", cfl=0.2)).metrics
+    for k, tol in (("P1", 0.05), ("P2", 0.05), ("t_A1", 0.05), ("t_A2", 0.05), ("DA", 0.005)):
+        assert abs(fine_dt[k] - m[k]) < tol, (k, fine_dt[k], m[k])
+
+
 def test_coupling_cap_is_an_error_naming_the_time():
     with pytest.raises(SimulationError, match=r"did not converge at t = [0-9.]+ ms"):
         simulate(RunParams(resolution="coarse", coupling_tol=1e-14, max_coupling_iterations=2,
