@@ -16,42 +16,74 @@ from .kernels.neighbours import build_neighbours
 
 MAX_NEIGHBOURS = 128
 COND_MAX = 1e8  # largest accepted 1-norm condition number of a scaled moment matrix
+SKIN = 0.15  # neighbour lists search (1 + SKIN) times the support, and are reused until a node
+# has moved by half the margin: a pair beyond the support has a Wendland weight of exactly 0, so
+# the extra pairs change nothing and the operators stay exact
+
+
+class NeighbourTable:
+    """Verlet neighbour lists with a skin, shared by the operators at t^n, t^{n+1/2}, t^{n+1}."""
+
+    def __init__(self, h, kappa, skin=SKIN):
+        n = h.shape[0]
+        self.h = h
+        self.kappa = kappa
+        self.skin = skin
+        self.nbr = np.zeros((n, MAX_NEIGHBOURS), np.int64)
+        self.mirrored = np.zeros((n, MAX_NEIGHBOURS), np.int8)
+        self.count = np.zeros(n, np.int64)
+        self.x_ref = None
+        self.y_ref = None
+        self.max_move = 0.5 * skin * kappa * float(h.min())
+        self.searches = 0
+
+    def update(self, x, y, time_ms=None):
+        """Search again if some node moved more than half the skin since the last search."""
+        if self.x_ref is not None:
+            move2 = np.max((x - self.x_ref) ** 2 + (y - self.y_ref) ** 2)
+            if move2 < self.max_move ** 2:  # False for NaN: a blown-up state is searched, and fails
+                return
+        status = build_neighbours(x, y, self.h, self.kappa * (1.0 + self.skin), self.nbr,
+                                  self.mirrored, self.count)
+        if status < 0:
+            raise SimulationError(
+                "fluid blew up: node positions are not finite"
+                + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms, "blow-up")
+        if status:
+            raise SimulationError(
+                f"node {status - 1} has more than {MAX_NEIGHBOURS} neighbours"
+                + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms,
+                "neighbours")
+        self.x_ref = x.copy()
+        self.y_ref = y.copy()
+        self.searches += 1
 
 
 class Operators:
-    """Neighbour table, MFPM weights and Brookshaw coefficients for one configuration."""
+    """MFPM weights and Brookshaw coefficients for one configuration, on a shared neighbour table."""
 
-    def __init__(self, h, area, kappa):
+    def __init__(self, h, area, kappa, table: NeighbourTable | None = None):
         n = h.shape[0]
         self.h = h
         self.area = area
         self.kappa = kappa
-        self.nbr = np.zeros((n, MAX_NEIGHBOURS), np.int64)
-        self.mirrored = np.zeros((n, MAX_NEIGHBOURS), np.int8)
-        self.count = np.zeros(n, np.int64)
+        self.table = table if table is not None else NeighbourTable(h, kappa)
+        self.nbr = self.table.nbr
+        self.mirrored = self.table.mirrored
+        self.count = self.table.count
         self.weights = np.zeros((n, MAX_NEIGHBOURS, 5))
         self.lap_b = np.zeros((n, MAX_NEIGHBOURS))
         self.cond = np.zeros(n)
         self.all_nodes = np.arange(n)
 
     def build(self, x, y, time_ms=None, active=None):
-        """Search neighbours and factor every moment matrix at positions (x, y) [m].
+        """Factor the moment matrices at positions (x, y) [m] (updating the neighbour table first).
 
-        With ``active`` (node indices) only those nodes' weights are recomputed, on the existing
-        neighbour table: used within one time step, when only the cornea has moved (a pair that
-        enters a support in between carries a Wendland weight of ~0; one that leaves, exactly 0).
+        With ``active`` (node indices) only those nodes' weights are recomputed: used within one
+        time step, when only the cornea has moved.
         """
+        self.table.update(x, y, time_ms)
         if active is None:
-            status = build_neighbours(x, y, self.h, self.kappa, self.nbr, self.mirrored, self.count)
-            if status < 0:
-                raise SimulationError(
-                    "fluid blew up: node positions are not finite"
-                    + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms, "blow-up")
-            if status:
-                raise SimulationError(
-                    f"node {status - 1} has more than {MAX_NEIGHBOURS} neighbours"
-                    + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms,
-                    "neighbours")
             active = self.all_nodes
         status = compute_weights(x, y, self.h, self.area, self.kappa, self.nbr, self.mirrored,
                                  self.count, COND_MAX, active, self.weights, self.lap_b, self.cond)

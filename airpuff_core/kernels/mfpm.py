@@ -77,49 +77,75 @@ def compute_weights(x, y, h, area, kappa, nbr, mirrored, count, cond_max, active
     """MFPM pair weights ``weights[i, k, beta]`` and Brookshaw coefficients ``lap_b[i, k]`` for the
     nodes listed in ``active`` (all nodes, or those near the moving cornea).
 
-    ``cond[i]`` receives the 1-norm condition number of the scaled moment matrix.
-    Returns 0, or i+1 for the first node whose matrix is singular or worse than ``cond_max``.
+    The moment matrix is factored (Cholesky) and inverted once per node; the pair weights are then
+    A^-1 (P_j W_j) with no division in the pair loop.  ``cond[i]`` receives the 1-norm condition
+    number of the scaled moment matrix.  Returns 0, or i+1 for the first node whose matrix is
+    singular or worse than ``cond_max``.
     """
+    maxn = nbr.shape[1]
     A = np.empty((5, 5))
     L = np.zeros((5, 5))
-    p = np.empty(5)
-    c = np.empty(5)
+    Ainv = np.empty((5, 5))
     e = np.empty(5)
     col = np.empty(5)
     z = np.empty(5)
+    wk = np.empty(maxn)
+    uk = np.empty(maxn)
+    vk = np.empty(maxn)
     status = 0
     for i in active:
         s = kappa * h[i]
-        A[:, :] = 0.0
+        inv_s = 1.0 / s
+        for a in range(5):
+            for b in range(5):
+                A[a, b] = 0.0
         for k in range(count[i]):
             j = nbr[i, k]
             xj = -x[j] if mirrored[i, k] else x[j]
             dx = xj - x[i]
             dy = y[j] - y[i]
             r = np.sqrt(dx * dx + dy * dy)
-            H = kappa * max(h[i], h[j])
-            w = _wendland(r / H)
-            u = dx / s
-            v = dy / s
-            p[0] = u
-            p[1] = v
-            p[2] = 0.5 * u * u
-            p[3] = u * v
-            p[4] = 0.5 * v * v
-            for a in range(5):
-                for b in range(5):
-                    A[a, b] += w * p[a] * p[b]
+            inv_H = 1.0 / (kappa * max(h[i], h[j]))
+            q = r * inv_H
+            w = _wendland(q)
+            u = dx * inv_s
+            v = dy * inv_s
+            wk[k] = w
+            uk[k] = u
+            vk[k] = v
+            p2 = 0.5 * u * u
+            p3 = u * v
+            p4 = 0.5 * v * v
+            # lower triangle of sum_j w p p^T
+            A[0, 0] += w * u * u
+            A[1, 0] += w * v * u
+            A[1, 1] += w * v * v
+            A[2, 0] += w * p2 * u
+            A[2, 1] += w * p2 * v
+            A[2, 2] += w * p2 * p2
+            A[3, 0] += w * p3 * u
+            A[3, 1] += w * p3 * v
+            A[3, 2] += w * p3 * p2
+            A[3, 3] += w * p3 * p3
+            A[4, 0] += w * p4 * u
+            A[4, 1] += w * p4 * v
+            A[4, 2] += w * p4 * p2
+            A[4, 3] += w * p4 * p3
+            A[4, 4] += w * p4 * p4
             # Brookshaw coefficient: 2 A_j (-dW/dr)/r with W = 7/(pi H^2) (1-q)^4 (4q+1)
-            q = r / H
-            t = 1.0 - q
-            lap_b[i, k] = 2.0 * area[j] * 140.0 * t * t * t / (np.pi * H * H * H * H)
+            t = 1.0 - q if q < 1.0 else 0.0
+            ih2 = inv_H * inv_H
+            lap_b[i, k] = 2.0 * area[j] * (140.0 / np.pi) * t * t * t * ih2 * ih2
+        for a in range(5):
+            for b in range(a + 1, 5):
+                A[a, b] = A[b, a]
         ok = _cholesky5(A, L)
         if not ok:
             cond[i] = np.inf
             if status == 0:
                 status = i + 1
             continue
-        # condition number ||A||_1 ||A^-1||_1 from the explicit inverse (five solves)
+        # explicit inverse (five solves) for the weights and the condition number
         anorm = 0.0
         for b in range(5):
             sacc = 0.0
@@ -128,37 +154,39 @@ def compute_weights(x, y, h, area, kappa, nbr, mirrored, count, cond_max, active
             anorm = max(anorm, sacc)
         inorm = 0.0
         for b in range(5):
-            e[:] = 0.0
+            for a in range(5):
+                e[a] = 0.0
             e[b] = 1.0
             _solve5(L, e, col, z)
             sacc = 0.0
             for a in range(5):
+                Ainv[a, b] = col[a]
                 sacc += abs(col[a])
             inorm = max(inorm, sacc)
         cond[i] = anorm * inorm
         if not (cond[i] < cond_max) and status == 0:
             status = i + 1
+        s1 = inv_s
+        s2 = inv_s * inv_s
         for k in range(count[i]):
-            j = nbr[i, k]
-            xj = -x[j] if mirrored[i, k] else x[j]
-            dx = xj - x[i]
-            dy = y[j] - y[i]
-            r = np.sqrt(dx * dx + dy * dy)
-            H = kappa * max(h[i], h[j])
-            w = _wendland(r / H)
-            u = dx / s
-            v = dy / s
-            p[0] = u * w
-            p[1] = v * w
-            p[2] = 0.5 * u * u * w
-            p[3] = u * v * w
-            p[4] = 0.5 * v * v * w
-            _solve5(L, p, c, z)
-            weights[i, k, 0] = c[0] / s
-            weights[i, k, 1] = c[1] / s
-            weights[i, k, 2] = c[2] / (s * s)
-            weights[i, k, 3] = c[3] / (s * s)
-            weights[i, k, 4] = c[4] / (s * s)
+            w = wk[k]
+            u = uk[k]
+            v = vk[k]
+            p0 = u * w
+            p1 = v * w
+            p2 = 0.5 * u * u * w
+            p3 = u * v * w
+            p4 = 0.5 * v * v * w
+            weights[i, k, 0] = s1 * (Ainv[0, 0] * p0 + Ainv[0, 1] * p1 + Ainv[0, 2] * p2
+                                     + Ainv[0, 3] * p3 + Ainv[0, 4] * p4)
+            weights[i, k, 1] = s1 * (Ainv[1, 0] * p0 + Ainv[1, 1] * p1 + Ainv[1, 2] * p2
+                                     + Ainv[1, 3] * p3 + Ainv[1, 4] * p4)
+            weights[i, k, 2] = s2 * (Ainv[2, 0] * p0 + Ainv[2, 1] * p1 + Ainv[2, 2] * p2
+                                     + Ainv[2, 3] * p3 + Ainv[2, 4] * p4)
+            weights[i, k, 3] = s2 * (Ainv[3, 0] * p0 + Ainv[3, 1] * p1 + Ainv[3, 2] * p2
+                                     + Ainv[3, 3] * p3 + Ainv[3, 4] * p4)
+            weights[i, k, 4] = s2 * (Ainv[4, 0] * p0 + Ainv[4, 1] * p1 + Ainv[4, 2] * p2
+                                     + Ainv[4, 3] * p3 + Ainv[4, 4] * p4)
     return status
 
 

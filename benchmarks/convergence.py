@@ -1,0 +1,114 @@
+"""Convergence of P1, P2, CH, DA, t_A1, t_A2 with resolution (coarse, paper, fine), default parameters.
+
+    python benchmarks/convergence.py --out conv            # coarse, paper and fine, in sequence
+    python benchmarks/convergence.py --out conv --reuse    # read back finished runs
+
+Each resolution is one ``simulate(RunParams(resolution=...))`` call in this process (the fine run
+takes the longest; run it once).  Writes ``<out>/convergence.csv`` and ``.json``, keeps each run's
+netCDF in ``<out>`` and prints a markdown table with the observed order
+
+    p = log(|m_coarse - m_paper| / |m_paper - m_fine|) / log(r),   r = h_coarse/h_paper ~ h_paper/h_fine
+
+where it is defined (the two differences have the same sign and neither is zero), and the
+Richardson estimate m_fine + (m_fine - m_paper)/(r^p - 1) of the converged value where p > 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _study_common import PAPER, SHOWN, UNITS, fmt, run_variant, write_tables  # noqa: E402
+
+from airpuff_core import RunParams  # noqa: E402
+from airpuff_core.geometry import build_chamber  # noqa: E402
+
+LEVELS = ("coarse", "paper", "fine")
+
+
+def spacing(params: RunParams) -> float:
+    """Largest fluid node spacing h [mm] of the run's chamber (no simulation)."""
+    si = params.si()
+    ch = build_chamber(params.geometry, params.layout, params.resolution, si["R"], si["r_post"],
+                       si["alpha0"])
+    return float(ch.h.max() * 1e3)
+
+
+def observed_order(mc, mp, mf, r):
+    d1, d2 = mc - mp, mp - mf
+    if not all(math.isfinite(v) for v in (mc, mp, mf)) or d1 == 0 or d2 == 0:
+        return math.nan, math.nan, "undefined"
+    if d1 * d2 < 0:
+        return math.nan, math.nan, "oscillatory"
+    p = math.log(abs(d1) / abs(d2)) / math.log(r)
+    rich = mf + (mf - mp) / (r ** p - 1.0) if p > 0 else math.nan
+    return p, rich, "monotone"
+
+
+def markdown(rows: list[dict], hs: dict, r: float) -> str:
+    by = {row["resolution"]: row for row in rows}
+    ok = all(lvl in by and by[lvl]["status"] == "ok" for lvl in LEVELS)
+    lines = ["Default parameters; "
+             + ", ".join(f"{lvl} h = {hs[lvl]:.4f} mm ({by[lvl].get('n_fluid', math.nan):.0f} "
+                         f"fluid nodes)" for lvl in LEVELS if lvl in by)
+             + f"; refinement ratio r = {r:.3f}.", ""]
+    lines.append("| metric | coarse | paper | fine | paper - fine | observed order p | "
+                 "Richardson | paper (Montanino et al.) |")
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for k in SHOWN:
+        nd = 3 if k == "DA" else 2
+        vals = [by[lvl][k] if lvl in by and by[lvl]["status"] == "ok" else math.nan
+                for lvl in LEVELS]
+        if ok:
+            p, rich, kind = observed_order(*vals, r)
+            ptxt = fmt(p, 2) if math.isfinite(p) else kind
+            diff = f"{vals[1] - vals[2]:+.{nd}f}"
+        else:
+            ptxt, rich, diff = "-", math.nan, "-"
+        lines.append(f"| {k} [{UNITS[k]}] | " + " | ".join(fmt(v, nd) for v in vals)
+                     + f" | {diff} | {ptxt} | {fmt(rich, nd)} | {fmt(PAPER[k], 2)} |")
+    lines.append("")
+    lines.append("| resolution | steps | mean dt [us] | wall [s] | status |")
+    lines.append("|---|---|---|---|---|")
+    for lvl in LEVELS:
+        if lvl in by:
+            row = by[lvl]
+            lines.append(f"| {lvl} | {fmt(row.get('steps', math.nan), 0)} | "
+                         f"{fmt(row.get('dt_mean_us', math.nan), 3)} | "
+                         f"{fmt(row.get('wall_s', math.nan), 0)} | {row['status']} "
+                         f"{row.get('message', '')} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="output folder (netCDF per run, CSV, JSON)")
+    ap.add_argument("--levels", default=",".join(LEVELS),
+                    help="comma-separated resolutions to run (default all three)")
+    ap.add_argument("--reuse", action="store_true",
+                    help="read back runs whose netCDF exists with the same parameters")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    levels = args.levels.split(",")
+    hs = {lvl: spacing(RunParams(resolution=lvl)) for lvl in LEVELS}
+    r = math.sqrt(hs["coarse"] / hs["fine"])  # geometric mean of the two refinement ratios
+    rows = []
+    t0 = time.perf_counter()
+    for lvl in levels:
+        rows.append(run_variant(lvl, RunParams(resolution=lvl), out, args.reuse))
+        rows[-1]["h_mm"] = hs[lvl]
+        write_tables(rows, out, "convergence")
+    md = markdown(rows, hs, r)
+    (out / "convergence.md").write_text(md + "\n")
+    print(md)
+    print(f"\n{len(rows)} runs in {time.perf_counter() - t0:.0f} s; tables in {out}/convergence.*")
+
+
+if __name__ == "__main__":
+    main()

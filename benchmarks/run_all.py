@@ -1,0 +1,28 @@
+"""`make bench`: every benchmark figure of docs/performance.md, printed.
+
+    python benchmarks/run_all.py            # all
+    python benchmarks/run_all.py --quick    # skip the paper-resolution run and the sweep
+"""
+
+import os
+import platform
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from benchmarks import bench_compile, bench_mfpm, bench_sweep, run_default  # noqa: E402
+
+
+def main(argv):
+    quick = "--quick" in argv
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    bench_compile.main()
+    bench_mfpm.main()
+    run_default.main("coarse")
+    if not quick:
+        run_default.main("paper")
+        bench_sweep.main()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
