@@ -76,6 +76,16 @@ def _ring_nodes(rho, phi_end, spacing, include_end=True):
     return phis if include_end else phis[:-1]
 
 
+def _sector_kind(ring, j, n_rings, n_on_ring):
+    """Kind of node j on ring ``ring`` of the sector: the outer ring is the cornea, the inner ring
+    and the last node of every ring (the lateral wall) are rigid, the first node is on the axis."""
+    if ring == n_rings - 1:
+        return CORNEA
+    if ring == 0 or j == n_on_ring - 1:
+        return WALL
+    return AXIS if j == 0 else INTERIOR
+
+
 def _sector_isotropic(R, r_post, alpha0, n_rings):
     dr = (R - r_post) / (n_rings - 1)
     xs, ys, kinds = [], [], []
@@ -83,17 +93,9 @@ def _sector_isotropic(R, r_post, alpha0, n_rings):
         rho = r_post + i * dr
         phis = _ring_nodes(rho, alpha0, dr)
         for j, ph in enumerate(phis):
-            if i == n_rings - 1:
-                k = CORNEA
-            elif i == 0 or j == len(phis) - 1:
-                k = WALL
-            elif j == 0:
-                k = AXIS
-            else:
-                k = INTERIOR
             xs.append(rho * math.sin(ph))
             ys.append(rho * math.cos(ph))
-            kinds.append(k)
+            kinds.append(_sector_kind(i, j, n_rings, len(phis)))
     h = np.full(len(xs), dr)
     return np.array(xs), np.array(ys), np.array(kinds, np.int8), h
 
@@ -106,17 +108,9 @@ def _sector_polar(R, r_post, alpha0, n_rho, n_phi):
         rho = r_post + i * dr
         for j in range(n_phi):
             ph = j * dphi
-            if i == n_rho - 1:
-                k = CORNEA
-            elif i == 0 or j == n_phi - 1:
-                k = WALL
-            elif j == 0:
-                k = AXIS
-            else:
-                k = INTERIOR
             xs.append(rho * math.sin(ph))
             ys.append(rho * math.cos(ph))
-            kinds.append(k)
+            kinds.append(_sector_kind(i, j, n_rho, n_phi))
             hs.append(max(dr, rho * dphi))
     return np.array(xs), np.array(ys), np.array(kinds, np.int8), np.array(hs)
 
