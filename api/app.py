@@ -348,6 +348,43 @@ def create_app(settings: Settings) -> FastAPI:
             raise HTTPException(409, f"job {job_id} already ended ({row['status']})")
         return job_info(row)
 
+    @app.post("/identify", response_model=schemas.IdentifyResult, tags=["identify"],
+              dependencies=deps,
+              responses={409: {"model": schemas.Problem, "description": "the job is not done"},
+                         **not_found, **invalid, **unauthorized},
+              summary="Estimate IOP and E0 from a measurement, by interpolation on a finished "
+                      "sweep job")
+    def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):
+        # Interpolation only (milliseconds): the metrics come from the job database, so this
+        # handler never opens a netCDF file and never runs the solver.
+        from sweep.identify import IdentifyError, SweepTable, identify
+
+        if body.refine:
+            raise _problem_422(["body", "refine"], "refine",
+                               "refine: solver refinement is not offered over HTTP; accepted: "
+                               "false (use `airpuff identify --refine` on the downloaded dataset)")
+        row = job_or_404(con, body.job_id)
+        if row["status"] != "done":
+            raise HTTPException(409, f"job {body.job_id} is {row['status']}; identification "
+                                     "needs a finished (done) sweep")
+        records = []
+        for p in db.job_points(con, body.job_id):
+            rec = {name: p[name] for name in SWEPT}
+            rec["status"] = p["status"]
+            rec.update(db.loads(p["metrics_json"]) or {} if p["status"] == "ok" else {})
+            records.append(rec)
+        measurement = {k: (v["value"], v["sigma"])
+                       for k, v in body.measurement.model_dump().items() if v is not None}
+        try:
+            table = SweepTable.from_records(json.loads(row["spec_json"]), records)
+            est = identify(table, measurement, body.thickness, body.pmax)
+        except IdentifyError as err:
+            loc = ["body", "measurement", err.field] if err.field in schemas.MEASURABLE_UNITS \
+                else ["body", err.field]
+            raise _problem_422(loc, err.field, f"{err.field}: {err}",
+                               "out_of_range" if "outside" in str(err) else "value_error") from None
+        return {"job_id": body.job_id, **est.to_dict()}
+
     # -- schema and docs (behind the token too, when one is set) -------------------------------
 
     @app.get("/openapi.json", include_in_schema=False, dependencies=deps)

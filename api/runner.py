@@ -6,17 +6,26 @@ One loop (period ``Settings.poll_interval``, woken early by the API on submit an
    transaction): futures that no queued or running job needs are cancelled on the cluster;
 2. queued jobs (oldest first): claimed (``running``); each pending point is either taken from the
    ``points`` table (same key, result file still on disk: *reused*), attached to a future that is
-   already computing that key for another job, or submitted as ``sweep.store.run_point`` with
-   ``pure=False``, ``retries`` and a priority that favours older jobs;
-3. finished futures: the point's record goes to ``points`` and to every running job waiting for
-   that key, in one transaction;
+   already computing that key for another job, or submitted as ``sweep.store.compute_point``
+   with ``pure=False``, ``retries`` and a priority that favours older jobs;
+3. finished futures: the point's netCDF file, which came back through Dask as bytes, is written
+   into the data directory by this thread (``sweep.store.save_point``), then the point's record
+   goes to ``points`` and to every running job waiting for that key, in one transaction;
 4. running jobs with no pending point: the point files are combined into the job's ``sweep.nc``
    (only this thread touches netCDF in the server process) and the job becomes ``done`` (or
    ``failed`` if every point failed or combining failed).
 
+Why results travel back through Dask instead of workers writing into the data directory: with
+``--scheduler`` the workers may run in other containers, on other hosts, in batch jobs or in
+Kubernetes pods.  This way they need no file system shared with the service (no shared volume,
+no matching user ids, no path that must mean the same on both sides, no NFS caching delays), so
+there is nothing to check at start-up and nothing to misconfigure; and this process is the only
+writer of the data directory.  The cost is about 0.1 MB per coarse point through Dask.
+
 The scheduler keeps no state across restarts; the database does.  On start-up, jobs left
 ``running`` by a previous server are queued again; their finished points are reused, not
-recomputed (``run_point`` also reads back a point file that was written just before a crash).
+recomputed (a point file written just before a crash, whose record did not reach the database,
+is read back too).
 """
 
 from __future__ import annotations
@@ -79,6 +88,7 @@ class Runner:
         self._warmed: set[tuple] = set()
         self._last_info = 0.0
         self._n_cancelled = -1
+        self._worker_warnings: set[str] = set()
 
     # -- control (any thread) ----------------------------------------------------------------
     def start(self) -> None:
@@ -173,9 +183,19 @@ class Runner:
             return
         self._last_info = now
         try:
-            self.n_workers = len(self.client.nthreads())
+            n = len(self.client.nthreads())
         except Exception:  # noqa: BLE001 - informational only
-            pass
+            return
+        if n != self.n_workers and self.settings.scheduler:
+            # Workers of an existing scheduler were started by someone else: say once what in
+            # their set-up would oversubscribe the cores or make them compile the solver.
+            from sweep.cluster import check_workers
+
+            for warning in check_workers(self.client):
+                if warning not in self._worker_warnings:
+                    self._worker_warnings.add(warning)
+                    log.warning(warning)
+        self.n_workers = n
 
     # -- one pass -----------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -221,7 +241,7 @@ class Runner:
 
     def _claim_queued(self) -> None:
         from sweep.grid import SweepSpec
-        from sweep.store import point_key
+        from sweep.store import point_key, read_point
 
         queued = self.con.execute("SELECT id, seq, spec_json FROM jobs WHERE status = 'queued' "
                                   "ORDER BY seq").fetchall()
@@ -242,7 +262,7 @@ class Runner:
                 continue
             pending = self.con.execute("SELECT idx, key FROM job_points WHERE job_id = ? "
                                        "AND status = 'pending' ORDER BY idx", (job_id,)).fetchall()
-            reused, submit = [], {}
+            reused, submit, on_disk = [], {}, {}
             for row in pending:
                 params = points[row["idx"]]
                 key = point_key(params)
@@ -250,11 +270,15 @@ class Runner:
                     with db.write(self.con):
                         self.con.execute("UPDATE job_points SET key = ? WHERE job_id = ? AND "
                                          "idx = ?", (key, job_id, row["idx"]))
-                if key in self.futures or key in submit:
+                if key in self.futures or key in submit or key in on_disk:
                     continue  # already computing for another job (or listed twice)
                 stored = self._stored(key)
                 if stored is not None:
                     reused.append((stored["status"], stored["message"], job_id, key))
+                    continue
+                found = read_point(self.settings.points_dir, key)
+                if found is not None:  # a file written just before a crash (no record yet)
+                    on_disk[key] = (params.to_dict(), {**found, "computed": False})
                 else:
                     submit[key] = params.to_dict()
             if reused:
@@ -262,10 +286,14 @@ class Runner:
                     self.con.executemany(
                         "UPDATE job_points SET status = ?, message = ?, reused = 1 "
                         "WHERE job_id = ? AND key = ? AND status = 'pending'", reused)
+            if on_disk:
+                self._ensure_point_rows({k: p for k, (p, _) in on_disk.items()})
+                self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
             self._submit(job_id, job["seq"], submit)
+            n_reused = len(reused) + len(on_disk)
             log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
-                     job_id, len(points), len(reused), len(submit),
-                     len(pending) - len(reused) - len(submit))
+                     job_id, len(points), n_reused, len(submit),
+                     len(pending) - n_reused - len(submit))
 
     def _stored(self, key: str):
         """The points row of ``key`` if its result is final and its file is still on disk."""
@@ -280,24 +308,28 @@ class Runner:
     def _submit(self, job_id: str, seq: int, submit: dict[str, dict]) -> None:
         if not submit:
             return
-        from sweep.store import run_point
+        from sweep.store import compute_point
 
-        with db.write(self.con):
-            self.con.executemany(
-                "INSERT INTO points (key, params_json, status, submissions) "
-                "VALUES (?, ?, 'pending', 1) ON CONFLICT (key) DO UPDATE SET "
-                "status = 'pending', submissions = submissions + 1",
-                [(k, json.dumps(p, sort_keys=True)) for k, p in submit.items()])
-        points_dir = str(self.settings.points_dir)
+        self._ensure_point_rows(submit, submitted=True)
         for key, params in submit.items():
             self.futures[key] = self.client.submit(
-                run_point, params, points_dir, pure=False, retries=self.settings.retries,
+                compute_point, params, pure=False, retries=self.settings.retries,
                 priority=-int(seq), key=f"airpuff-point-{key}-{uuid.uuid4().hex[:8]}")
             self.trigger[key] = job_id
             self.params[key] = params
 
+    def _ensure_point_rows(self, params_by_key: dict[str, dict], submitted: bool = False) -> None:
+        """A ``points`` row (status pending) for each key; ``submitted`` counts a submission."""
+        with db.write(self.con):
+            self.con.executemany(
+                "INSERT INTO points (key, params_json, status, submissions) "
+                "VALUES (?, ?, 'pending', ?) ON CONFLICT (key) DO UPDATE SET "
+                "status = 'pending', submissions = submissions + ?",
+                [(k, json.dumps(p, sort_keys=True), int(submitted), int(submitted))
+                 for k, p in params_by_key.items()])
+
     def _collect(self) -> None:
-        from sweep.store import failure_from_exception
+        from sweep.store import failure_from_exception, save_point
 
         done = [(k, f) for k, f in self.futures.items() if f.done()]
         if not done:
@@ -308,7 +340,7 @@ class Runner:
             job_id = self.trigger.pop(key, None)
             params = self.params.pop(key, None)
             if fut.status == "finished":
-                rec = fut.result()
+                rec = self._save(save_point, key, fut)
             elif fut.status == "cancelled":  # lost with the scheduler, or cancelled by us
                 if key in self._needed_keys() and self.lost.get(key, 0) < MAX_LOST_RESUBMITS:
                     self.lost[key] = self.lost.get(key, 0) + 1
@@ -329,6 +361,23 @@ class Runner:
             records.append((key, job_id, rec))
         if records:
             self._record(records)
+
+    def _save(self, save_point, key: str, fut) -> dict:
+        """Write the point file that came back through Dask into the data directory."""
+        try:
+            rec, data = fut.result()
+            if rec.get("key") != key:  # the workers run another version of airpuff
+                log.warning("point %s came back under key %s: do the workers run the same "
+                            "airpuff version as this server?", key, rec.get("key"))
+            return save_point(self.settings.points_dir, key, rec, data)
+        except Exception as err:  # noqa: BLE001 - e.g. a full disk; a later job recomputes it
+            from airpuff_core.result import METRICS
+
+            log.exception("storing point %s", key)
+            message = " ".join(f"could not store the result: {type(err).__name__}: {err}".split())
+            return {"status": "failed", "message": message,
+                    "metrics": {name: None for name in METRICS}, "wall_s": None,
+                    "computed": True}
 
     def _record(self, records) -> None:
         now = db.now()

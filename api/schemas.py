@@ -176,3 +176,58 @@ def units() -> dict[str, str]:
     u = {name: PARAMETERS[name].unit for name in SWEPT}
     u.update({name: unit for name, (unit, _) in METRICS.items()})
     return u
+
+
+# -- POST /identify -------------------------------------------------------------------------------
+
+MEASURABLE_UNITS = {"P1": "mmHg", "P2": "mmHg", "DA": "mm", "t_A1": "ms", "t_A2": "ms"}
+
+
+class MeasuredValue(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    value: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1e6, le=1e6)] = Field(
+        description="measured value in the metric's unit (P1, P2 mmHg; DA mm; t_A1, t_A2 ms)")
+    sigma: Optional[Annotated[float, Strict(), Field(allow_inf_nan=False, gt=0, le=1e6)]] = Field(
+        default=None, description="1-sigma uncertainty in the same unit; default 0.5 mmHg "
+                                  "(P1, P2), 0.02 mm (DA), 0.1 ms (t_A1, t_A2)")
+
+
+class Measurement(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    P1: Optional[MeasuredValue] = Field(default=None, description="first applanation pressure [mmHg]")
+    P2: Optional[MeasuredValue] = Field(default=None, description="second applanation pressure [mmHg]")
+    DA: Optional[MeasuredValue] = Field(default=None, description="deformation amplitude [mm]")
+    t_A1: Optional[MeasuredValue] = Field(default=None, description="first applanation time [ms]")
+    t_A2: Optional[MeasuredValue] = Field(default=None, description="second applanation time [ms]")
+
+
+class IdentifyRequest(BaseModel):
+    """Estimate IOP and E0 from a measurement by interpolation on a finished sweep job."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"examples": [{
+        "job_id": "0123456789abcdef0123456789abcdef", "thickness": 0.5, "pmax": 10.0,
+        "measurement": {"P1": {"value": 17.5, "sigma": 0.5}, "DA": {"value": 1.0}}}]})
+    job_id: Annotated[str, Strict(), Field(min_length=1, max_length=64)] = Field(
+        description="id of a finished sweep job (POST /sweeps)")
+    thickness: Optional[_number(PARAMETERS["thickness"])] = Field(  # type: ignore[valid-type]
+        default=None, description="corneal thickness [mm]; needed if the sweep has several; "
+                                  "between two grid values the metrics are interpolated linearly")
+    pmax: Optional[_number(PARAMETERS["pmax"])] = Field(  # type: ignore[valid-type]
+        default=None, description="peak jet pressure [kPa]; needed if the sweep has several")
+    measurement: Measurement = Field(description="any non-empty subset of P1, P2, DA, t_A1, t_A2")
+    refine: Annotated[bool, Strict()] = Field(
+        default=False, description="must be false: refinement with solver runs is only offered "
+                                   "by `airpuff identify --refine`")
+
+
+class IdentifyResult(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    job_id: str = Field(description="the sweep job used")
+    IOP: float = Field(description="estimated IOP [mmHg]")
+    E0: float = Field(description="estimated E0 [MPa]")
+    IOP_interval: list[float] = Field(description="IOP extent of the 68 % region [mmHg]")
+    E0_interval: list[float] = Field(description="E0 extent of the 68 % region [MPa]")
+    IOP_identified: bool = Field(description="false if the IOP interval spans the whole sweep")
+    E0_identified: bool = Field(description="false if the E0 interval spans the whole sweep")
+    chi2_min: float = Field(description="chi^2 at the estimate")
+    notes: list[str] = Field(description="caveats (unidentified parameter, failed points, ...)")

@@ -40,7 +40,9 @@ def add_serve_parser(sub) -> None:
                    help="local Dask worker processes, one thread each (default 2)")
     g.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="use the Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of "
-                        "local workers; its workers must see DIR")
+                        "local workers; results come back through Dask, so its workers need "
+                        "not see DIR (they need airpuff installed, one thread each and "
+                        "NUMBA_NUM_THREADS=1)")
     p.add_argument("--max-points", default=str(DEFAULT_MAX_POINTS), metavar="N",
                    help=f"largest grid a request may ask for (default {DEFAULT_MAX_POINTS})")
     p.add_argument("--no-runner", action="store_true",
@@ -62,6 +64,28 @@ def _int(name: str, text: str, lo: int, hi: int) -> int:
     return v
 
 
+def _scheduler(text: str | None) -> str | None:
+    """A Dask scheduler address, checked for its form only (reaching it is the runner's job:
+    it retries, so the server may start before the scheduler does)."""
+    if text is None:
+        return None
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    address = text.strip()
+    try:
+        scheme, location = parse_address(address)
+        get_backend(scheme)
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            host, _ = parse_host_port(location)
+            if not host:
+                raise ValueError("no host")
+    except (ValueError, TypeError) as err:
+        fail(PROG, ValueError(f"invalid --scheduler={text!r}: accepted a Dask scheduler address "
+                              f"such as tcp://host:8786 ({err})"))
+    return address
+
+
 def _is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
@@ -75,6 +99,7 @@ def serve_command(args: argparse.Namespace) -> int:
     port = _int("--port", args.port, 0, 65535)
     max_points = _int("--max-points", args.max_points, 1, 10**9)
     workers = 2 if args.workers is None else _int("--workers", args.workers, 1, 1024)
+    scheduler = _scheduler(args.scheduler)
     data_dir = Path(args.data_dir)
     try:
         data_dir.mkdir(parents=True, exist_ok=True)
@@ -85,7 +110,7 @@ def serve_command(args: argparse.Namespace) -> int:
         fail(PROG, ValueError(f"invalid --data-dir={args.data_dir!r}: accepted a writable "
                               f"folder ({err.strerror})"))
     settings = Settings.from_env(data_dir.resolve(), max_points=max_points, workers=workers,
-                                 scheduler=args.scheduler, run_jobs=not args.no_runner)
+                                 scheduler=scheduler, run_jobs=not args.no_runner)
 
     logging.basicConfig(level=args.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -17,7 +17,10 @@ The key of a point is a hash of its full parameter set, so identical parameters 
 same file, whichever sweep asked for them.
 
 Interface used by the HTTP API (issue 5): ``point_key``, ``point_path``, ``failed_path``,
-``run_point``, ``read_point``, ``combine``, ``write_sweep``, ``POINTS_SUBDIR``, ``SWEEP_FILE``.
+``read_point``, ``combine``, ``write_sweep``, ``POINTS_SUBDIR``, ``SWEEP_FILE``; and (issue 6)
+``compute_point`` on the workers with ``save_point`` in the service, so that a point's file
+travels back through Dask and workers need no file system shared with the service.
+``airpuff sweep`` submits ``run_point``, which writes the file on the worker.
 """
 
 from __future__ import annotations
@@ -82,6 +85,19 @@ def _atomic_write_text(path: Path, text: str) -> None:
         raise
 
 
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
 def _json_safe(metrics: dict[str, Any]) -> dict[str, float | None]:
     out = {}
     for name in METRICS:
@@ -109,14 +125,15 @@ def process_local_write_lock():
 
 # -- one point (runs on a worker) -----------------------------------------------------------------
 def run_point(params_dict: dict, points_dir: str, retry_failed: bool = False) -> dict:
-    """Run one grid point and store it; the function the runner submits to Dask workers.
+    """Run one grid point and store it; the function ``airpuff sweep`` submits to Dask workers.
 
     ``params_dict`` is ``RunParams.to_dict()`` (user units).  If the point is already stored it is
     read back, not recomputed (a finished point is never rewritten; a failed one is re-run only
     with ``retry_failed``).  Otherwise ``airpuff_core.simulate`` runs, and the result is written
     atomically to ``point_path``; a failure of any kind (``SimulationError`` for blow-up or
     non-convergence, or any other exception) is caught -- it must not kill the worker -- and
-    written to ``failed_path``.
+    written to ``failed_path``.  The worker must therefore see ``points_dir``; the HTTP service
+    uses :func:`compute_point` instead, which needs no shared file system.
 
     Returns a JSON-safe record::
 
@@ -127,9 +144,6 @@ def run_point(params_dict: dict, points_dir: str, retry_failed: bool = False) ->
          "params": dict, "pid": int, "first_in_process": bool,
          "jit_compiled": int, "jit_loaded": int}  # Numba compiles / cache loads during this call
     """
-    global _points_run_in_this_process
-    from sweep.cluster import jit_counts
-
     params = RunParams.from_dict(params_dict)
     key = point_key(params)
     existing = read_point(points_dir, key)
@@ -137,6 +151,86 @@ def run_point(params_dict: dict, points_dir: str, retry_failed: bool = False) ->
         existing.update(computed=False, pid=os.getpid(), first_in_process=False,
                         jit_compiled=0, jit_loaded=0)
         return existing
+
+    def store_ok(ds):
+        from airpuff_core.dataset import write_netcdf
+
+        with process_local_write_lock():
+            write_netcdf(ds, point_path(points_dir, key))
+        failed_path(points_dir, key).unlink(missing_ok=True)  # a retried point that now succeeded
+
+    def store_failed(record):
+        _atomic_write_text(failed_path(points_dir, key),
+                           json.dumps(record, indent=1, sort_keys=True))
+
+    return _simulate_point(params, key, store_ok, store_failed)
+
+
+def compute_point(params_dict: dict) -> tuple[dict, bytes | None]:
+    """Run one grid point and return its result file as bytes; the function the HTTP service's
+    runner submits to Dask workers.
+
+    Why the bytes travel back through Dask instead of the worker writing into the service's data
+    directory: workers in other containers, on other hosts, in batch jobs or in Kubernetes pods
+    then need no file system shared with the service (no shared volume, no matching user ids, no
+    NFS caching delays, no path that must mean the same on both sides), and the service's data
+    directory has exactly one writer.  A point file is about 0.1 MB at coarse resolution, small
+    beside what Dask moves routinely.  Nothing is written anywhere the caller can see: the
+    netCDF is written to a private temporary folder of this process (by the same
+    ``write_netcdf`` as :func:`run_point`, so the bytes are those of the file it would write),
+    read back and deleted.
+
+    Returns ``(record, netcdf)``: the record of :func:`run_point` (``computed`` is always True)
+    and the complete point file (bytes) if the status is ``"ok"``, else None.  A failure of any
+    kind is caught, as in :func:`run_point`.  The caller stores both with :func:`save_point`.
+    (A pair rather than the bytes inside the record: Dask estimates the size of a dict of more
+    than 10 values from a sample of them, and would often miss the file in its memory accounting.)
+    """
+    params = RunParams.from_dict(params_dict)
+    key = point_key(params)
+    blob: dict[str, bytes] = {}
+
+    def store_ok(ds):
+        from airpuff_core.dataset import write_netcdf
+
+        with tempfile.TemporaryDirectory(prefix="airpuff-point-") as tmp:
+            path = Path(tmp) / f"{key}.nc"
+            with process_local_write_lock():
+                write_netcdf(ds, path)
+            blob["netcdf"] = path.read_bytes()
+
+    record = _simulate_point(params, key, store_ok, lambda record: None)
+    return record, (blob["netcdf"] if record["status"] == "ok" else None)
+
+
+# Fields of a record that describe one call (which process, Numba activity), not the point.
+_PER_CALL = ("computed", "pid", "first_in_process", "jit_compiled", "jit_loaded")
+
+
+def save_point(points_dir: str | os.PathLike, key: str, record: dict,
+               data: bytes | None = None) -> dict:
+    """Store what :func:`compute_point` returned under ``key`` in ``points_dir`` (in the caller's
+    process): the netCDF bytes ``data`` atomically at ``point_path`` if the point is ok (any older
+    failure record is removed), else the failure record at ``failed_path``.  Returns the record.
+    ``key`` is the caller's, so the file lands where the caller will look for it."""
+    if record.get("status") == "ok":
+        if not isinstance(data, (bytes, bytearray, memoryview)) or bytes(data[:4]) not in (
+                b"\x89HDF", b"CDF\x01", b"CDF\x02"):
+            raise ValueError(f"point {key}: the result carries no netCDF file")
+        _atomic_write_bytes(point_path(points_dir, key), bytes(data))
+        failed_path(points_dir, key).unlink(missing_ok=True)
+    else:
+        stored = {k: v for k, v in record.items() if k not in _PER_CALL}
+        _atomic_write_text(failed_path(points_dir, key),
+                           json.dumps(stored, indent=1, sort_keys=True))
+    return record
+
+
+def _simulate_point(params: RunParams, key: str, store_ok, store_failed) -> dict:
+    """Simulate one point; ``store_ok(dataset)`` or ``store_failed(record)`` keeps the outcome.
+    Any exception (of the solver or of ``store_ok``) becomes a failed record."""
+    global _points_run_in_this_process
+    from sweep.cluster import jit_counts
 
     first = _points_run_in_this_process == 0
     _points_run_in_this_process += 1
@@ -150,17 +244,13 @@ def run_point(params_dict: dict, points_dir: str, retry_failed: bool = False) ->
         wall = time.perf_counter() - t0
         ds.attrs["sweep_point_key"] = key
         ds.attrs["wall_time_s"] = wall
-        from airpuff_core.dataset import write_netcdf
-
-        with process_local_write_lock():
-            write_netcdf(ds, point_path(points_dir, key))
-        failed_path(points_dir, key).unlink(missing_ok=True)  # a retried point that now succeeded
+        store_ok(ds)
         record = {"key": key, "status": "ok", "message": _notes_message(result.metric_notes),
                   "metrics": _json_safe(result.metrics), "wall_s": wall}
     except Exception as err:  # noqa: BLE001 - every failure is recorded, the worker lives on
         wall = time.perf_counter() - t0
         record = _failure_record(key, params, err, wall)
-        _atomic_write_text(failed_path(points_dir, key), json.dumps(record, indent=1, sort_keys=True))
+        store_failed(record)
     jit_after = jit_counts()
     record.update(computed=True, params=params.to_dict(), pid=os.getpid(), first_in_process=first,
                   jit_compiled=_delta(jit_before, jit_after, 1),
