@@ -69,9 +69,10 @@ def plot_hysteresis(ds, path):
     a.set_ylabel("normalised value [-]")
     a.legend(fontsize=8)
     a.set_title("(a) against normalised time", fontsize=9)
-    b.plot(pn, dn, color="tab:blue", label="loading and unloading path")
     i_peak = int(np.nanargmax(p))
-    b.plot(pn[:i_peak], dn[:i_peak], color="tab:orange", lw=2, label="loading (jet rising)")
+    b.plot(pn[:i_peak + 1], dn[:i_peak + 1], color="tab:orange", lw=2, label="loading (jet rising)")
+    b.plot(pn[i_peak:], dn[i_peak:], color="tab:blue", lw=1.2, ls="--",
+           label="unloading (jet falling)")
     b.set_xlabel("normalised jet pressure [-]")
     b.set_ylabel("normalised apex displacement [-]")
     b.legend(fontsize=8)
