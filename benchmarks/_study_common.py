@@ -1,4 +1,4 @@
-"""Shared helpers of the reproduction studies (benchmarks/sensitivity.py, benchmarks/convergence.py).
+"""Shared helpers of the reproduction studies (benchmarks/sensitivity.py, convergence.py).
 
 Each variant is one ``simulate()`` call in this process (one core, one run at a time).  Every
 finished run is kept as ``<out>/<name>.nc``; with ``--reuse`` a variant whose netCDF already exists
@@ -27,8 +27,9 @@ PAPER = {"P1": 21.96, "P2": 6.82, "CH": 15.14, "IOPg": 14.39, "IOPcc": 19.03,
 
 SHOWN = ("P1", "P2", "CH", "DA", "t_A1", "t_A2")
 EXTRA = ("IOPg", "IOPcc", "t_HC", "v_in_max", "v_out_max")
-DIAG = ("fluid_pressure_apex_at_A1", "fluid_pressure_apex_at_A2", "steps", "dt_mean_us",
-        "n_fluid", "n_cornea", "wall_s")
+DIAG = ("fluid_pressure_apex_at_A1", "fluid_pressure_apex_at_A2", "applanation_crossings_down",
+        "applanation_crossings_up", "max_volume_mismatch", "steps", "dt_mean_us", "n_fluid",
+        "n_cornea", "wall_s")
 UNITS = {"P1": "mmHg", "P2": "mmHg", "CH": "mmHg", "DA": "mm", "t_A1": "ms", "t_A2": "ms"}
 
 

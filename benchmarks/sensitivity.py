@@ -25,9 +25,11 @@ from _study_common import PAPER, SHOWN, fmt, run_variant, write_tables  # noqa: 
 
 from airpuff_core import RunParams  # noqa: E402
 
+_GAMMA = RunParams().hyperviscosity  # the default stabilisation strength
+
 # name -> (what it tests, changes to the defaults)
 VARIANTS: dict[str, tuple[str, dict]] = {
-    "default": ("defaults (running-max c, gamma 0.1, mu 7.5e-4, sector, isotropic)", {}),
+    "default": (f"defaults (running-max c, gamma {_GAMMA:g}, mu 7.5e-4, sector, isotropic)", {}),
     # sound-speed rule, c = c0 + 20 v_max
     "c_per_step": ("c rule per step (the paper's literal rule)", {"c_rule": "per_step"}),
     "c_fixed_10": ("c fixed at 10 m/s", {"c_rule": "fixed", "c0": 10.0}),
@@ -35,15 +37,23 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "c_fixed_30": ("c fixed at 30 m/s", {"c_rule": "fixed", "c0": 30.0}),
     "c_fixed_50": ("c fixed at 50 m/s (the SPH value the paper quotes)",
                    {"c_rule": "fixed", "c0": 50.0}),
-    # stabilisation strength gamma (default 0.1)
-    "hv_half": ("hyperviscosity halved (gamma 0.05)", {"hyperviscosity": 0.05}),
-    "hv_double": ("hyperviscosity doubled (gamma 0.2)", {"hyperviscosity": 0.2}),
-    "hv_x4": ("hyperviscosity x4 (gamma 0.4)", {"hyperviscosity": 0.4}),
+    # stabilisation strength gamma: relative to the default, and a few absolute values
+    "hv_half": (f"hyperviscosity halved (gamma {_GAMMA / 2:g})", {"hyperviscosity": _GAMMA / 2}),
+    "hv_double": (f"hyperviscosity doubled (gamma {2 * _GAMMA:g})", {"hyperviscosity": 2 * _GAMMA}),
+    "hv_x4": (f"hyperviscosity x4 (gamma {4 * _GAMMA:g})", {"hyperviscosity": 4 * _GAMMA}),
+    "hv_0.05": ("hyperviscosity gamma 0.05", {"hyperviscosity": 0.05}),
+    "hv_0.075": ("hyperviscosity gamma 0.075", {"hyperviscosity": 0.075}),
+    "hv_0.1": ("hyperviscosity gamma 0.1", {"hyperviscosity": 0.1}),
+    "hv_0.15": ("hyperviscosity gamma 0.15", {"hyperviscosity": 0.15}),
+    "hv_0.2": ("hyperviscosity gamma 0.2", {"hyperviscosity": 0.2}),
     # viscosity (default 7.5e-4 Pa s, water at body temperature)
     "mu_0": ("inviscid (mu 0)", {"mu": 0.0}),
     "mu_3e-3": ("mu 3e-3 Pa s (4x water)", {"mu": 3e-3}),
     "mu_0.1": ("mu 0.1 Pa s (an artificial viscosity, 130x water)", {"mu": 0.1}),
     "mu_1": ("mu 1 Pa s (an artificial viscosity, 1300x water)", {"mu": 1.0}),
+    "mu_2.5": ("mu 2.5 Pa s (an artificial viscosity, 3300x water)", {"mu": 2.5}),
+    "mu_1_c_fixed_30": ("mu 1 Pa s and c fixed at 30 m/s",
+                        {"mu": 1.0, "c_rule": "fixed", "c0": 30.0}),
     # chamber and nodes
     "geometry_cap": ("cap geometry (flat rigid plane through the limbus)", {"geometry": "cap"}),
     "layout_polar": ("the paper's polar lattice", {"layout": "polar"}),
@@ -58,23 +68,27 @@ VARIANTS: dict[str, tuple[str, dict]] = {
 
 def markdown(rows: list[dict], resolution: str) -> str:
     ref = next((r for r in rows if r["variant"] == "default" and r["status"] == "ok"), None)
-    head = ("| variant | change | P1 | P2 | CH | DA | t_A1 | t_A2 | dP1 | dP2 |\n"
-            "|---|---|---|---|---|---|---|---|---|---|")
+    head = ("| variant | change | P1 | P2 | CH | DA | t_A1 | t_A2 | dP1 | dP2 | sign changes |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|")
     lines = [f"Resolution `{resolution}`; P1, P2, CH in mmHg, DA in mm, t_A1, t_A2 in ms; "
-             "dP1, dP2 relative to the default run.", "", head]
+             "dP1, dP2 relative to the default run; sign changes = convex->concave / "
+             "concave->convex crossings of the apex curvature (1/1 is a clean puff; A1 is the "
+             "first, A2 the last).", "", head]
     lines.append("| paper | (Montanino et al.) | " + " | ".join(
-        fmt(PAPER[k]) for k in SHOWN) + " | | |")
+        fmt(PAPER[k]) for k in SHOWN) + " | | | |")
     for r in rows:
         desc = VARIANTS.get(r["variant"], ("", {}))[0]
         if r["status"] != "ok":
-            lines.append(f"| {r['variant']} | {desc} | failed: {r['message']} |" + " |" * 7)
+            lines.append(f"| {r['variant']} | {desc} | failed: {r['message']} |" + " |" * 8)
             continue
         vals = [fmt(r[k], 3 if k == "DA" else 2) for k in SHOWN]
         d = ["", ""]
         if ref is not None:
             d = [f"{r[k] - ref[k]:+.2f}" if math.isfinite(r[k]) and math.isfinite(ref[k]) else "-"
                  for k in ("P1", "P2")]
-        lines.append(f"| {r['variant']} | {desc} | " + " | ".join(vals + d) + " |")
+        sc = "/".join(fmt(r.get(k, math.nan), 0) for k in ("applanation_crossings_down",
+                                                            "applanation_crossings_up"))
+        lines.append(f"| {r['variant']} | {desc} | " + " | ".join(vals + d + [sc]) + " |")
     return "\n".join(lines)
 
 
