@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import sys
 
-from airpuff_core.cli import OneLineParser, add_run_parser
+from airpuff_core.cli import OneLineParser, add_plot_parser, add_run_parser
+from api.serve import add_serve_parser
+from sweep.cli import add_sweep_parser
+from sweep.identify_cli import add_identify_parser
 
 
 def build_parser() -> OneLineParser:
@@ -16,17 +19,9 @@ def build_parser() -> OneLineParser:
         "Coupled fluid-structure simulation of the corneal air-puff test."))
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
-    add_run_parser(sub)
-    for module, adder in (("airpuff_core.cli", "add_plot_parser"), ("sweep.cli", "add_sweep_parser"),
-                          ("api.serve", "add_serve_parser"), ("sweep.identify_cli", "add_identify_parser")):
-        try:
-            mod = __import__(module, fromlist=[adder])
-        except ModuleNotFoundError as err:
-            if err.name and module.startswith(err.name):
-                continue  # that sub-command is not built yet
-            raise
-        if hasattr(mod, adder):
-            getattr(mod, adder)(sub)
+    for add in (add_run_parser, add_plot_parser, add_sweep_parser, add_serve_parser,
+                add_identify_parser):
+        add(sub)
     return parser
 
 
