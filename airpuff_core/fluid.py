@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SimulationError
-from .kernels.mfpm import (brookshaw_laplacian, compute_weights, hyperviscous_increment,
-                           hyperviscous_term, near_nodes)
+from .kernels.mfpm import (compute_weights, hyperviscous_increment, hyperviscous_term,
+                           near_nodes)
 from .kernels.neighbours import build_neighbours
 
 MAX_NEIGHBOURS = 128
@@ -102,11 +102,6 @@ class Operators:
     def args(self):
         """(nbr, mirrored, count, weights) for the derivative kernels."""
         return self.nbr, self.mirrored, self.count, self.weights
-
-    def laplacian(self, f, parity=1.0):
-        out = np.empty_like(f)
-        brookshaw_laplacian(f, parity, self.nbr, self.mirrored, self.count, self.lap_b, out)
-        return out
 
     def hyperviscous(self, f, parity, scale, work1, work2, out):
         hyperviscous_term(f, parity, self.nbr, self.mirrored, self.count, self.lap_b, scale,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels.membrane import add_pressure_loads, air_jet, fung_resultants, internal_forces
+from .kernels.membrane import add_pressure_loads, fung_resultants, internal_forces
 
 
 def equibiaxial_tension(lam, Ebar, nu, k):
@@ -132,8 +132,9 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
 
 
 def jet_pressure(t, phi, pmax, a, b, T, t0):
-    """Eq. (11) at time t [s] and reference angles phi [rad]  [Pa] (vectorised)."""
-    return np.array([air_jet(t, p, pmax, a, b, T, t0) for p in np.atleast_1d(phi)])
+    """Eq. (11): p_a = pmax exp(-a sin^2 phi) exp(-b (t - t0)^2 / T^2)  [Pa], for arrays of times
+    t [s] or reference angles phi [rad] (numpy broadcasting; the kernels use ``air_jet``)."""
+    return pmax * np.exp(-a * np.sin(phi) ** 2) * np.exp(-b * (np.asarray(t) - t0) ** 2 / T ** 2)
 
 
 # m: apex curvature is fitted over the nodes with x <= this radius.  It must be small against the

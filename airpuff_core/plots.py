@@ -28,6 +28,13 @@ def _title(ds):
             f"({ds.attrs.get('resolution', '?')})")
 
 
+def _save(fig, path, tight=True, dpi=120):
+    if tight:
+        fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
 def _mark_applanations(ax, ds):
     for name, tname, color in (("P1", "t_A1", "tab:green"), ("P2", "t_A2", "tab:purple")):
         t = float(ds[tname])
@@ -50,9 +57,7 @@ def plot_apex_and_jet(ds, path):
     l3 = ax.plot([thc], [da], "o", color="tab:blue", label=f"DA = {da:.3f} mm at {thc:.2f} ms")
     ax.legend(handles=l1 + l2 + l3, loc="upper right", fontsize=8)
     ax.set_title("Apex displacement and air-jet pressure\n" + _title(ds), fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_hysteresis(ds, path):
@@ -78,9 +83,7 @@ def plot_hysteresis(ds, path):
     b.legend(fontsize=8)
     b.set_title("(b) hysteresis loop", fontsize=9)
     fig.suptitle("Normalised response\n" + _title(ds), fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_applanation(ds, path):
@@ -99,9 +102,7 @@ def plot_applanation(ds, path):
     handles = l1 + l2 + [h for h in ax.get_lines() if h.get_label().startswith("A")]
     ax.legend(handles=handles, loc="upper right", fontsize=7)
     ax.set_title("Applanations: sign changes of the apex curvature\n" + _title(ds), fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_shapes(ds, path):
@@ -138,8 +139,7 @@ def plot_shapes(ds, path):
         cb = fig.colorbar(sc, ax=axes, shrink=0.9)
         cb.set_label("fluid pressure [mmHg]")
     fig.suptitle("Cornea shapes and fluid pressure\n" + _title(ds), fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, tight=False, dpi=110)  # constrained layout
 
 
 def plot_run(nc_path, out_dir) -> list[Path]:
