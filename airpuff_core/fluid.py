@@ -10,8 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SimulationError
-from .kernels.mfpm import (compute_weights, hyperviscous_increment, hyperviscous_term,
-                           near_nodes)
+from .kernels.mfpm import compute_weights, hyperviscous_term, near_nodes
 from .kernels.neighbours import build_neighbours
 
 MAX_NEIGHBOURS = 128
@@ -29,7 +28,7 @@ class NeighbourTable:
         self.h = h
         self.kappa = kappa
         self.skin = skin
-        self.nbr = np.zeros((n, MAX_NEIGHBOURS), np.int64)
+        self.nbr = np.zeros((n, MAX_NEIGHBOURS), np.int32)
         self.mirrored = np.zeros((n, MAX_NEIGHBOURS), np.int8)
         self.count = np.zeros(n, np.int64)
         self.x_ref = None
@@ -68,25 +67,35 @@ class Operators:
         self.area = area
         self.kappa = kappa
         self.table = table if table is not None else NeighbourTable(h, kappa)
-        self.nbr = self.table.nbr
-        self.mirrored = self.table.mirrored
-        self.count = self.table.count
-        self.weights = np.zeros((n, MAX_NEIGHBOURS, 5))
-        self.lap_b = np.zeros((n, MAX_NEIGHBOURS))
+        # this configuration's own pairs (those of the table inside the support), stored flat:
+        # node i owns pairs start[i] ... start[i] + count[i] - 1.  The arrays are sized for the
+        # fullest table; only the pages in use are touched.
+        self.start = np.zeros(n + 1, np.int64)
+        self.count = np.zeros(n, np.int64)
+        self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.int32)
+        self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
+        self.weights = np.zeros((n * MAX_NEIGHBOURS, 5))
+        self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
         self.cond = np.zeros(n)
         self.all_nodes = np.arange(n)
+        self._table_search = -1  # the table search the pair layout was made for
 
     def build(self, x, y, time_ms=None, active=None):
         """Factor the moment matrices at positions (x, y) [m] (updating the neighbour table first).
 
         With ``active`` (node indices) only those nodes' weights are recomputed: used within one
-        time step, when only the cornea has moved.
+        time step, when only the cornea has moved.  If the neighbour table was searched again since
+        the last full build, every node is rebuilt.
         """
-        self.table.update(x, y, time_ms)
-        if active is None:
+        t = self.table
+        t.update(x, y, time_ms)
+        if active is None or t.searches != self._table_search:
             active = self.all_nodes
-        status = compute_weights(x, y, self.h, self.area, self.kappa, self.nbr, self.mirrored,
-                                 self.count, COND_MAX, active, self.weights, self.lap_b, self.cond)
+            np.cumsum(t.count, out=self.start[1:])
+            self._table_search = t.searches
+        status = compute_weights(x, y, self.h, self.area, self.kappa, t.nbr, t.mirrored, t.count,
+                                 COND_MAX, active, self.start, self.nbr, self.mirrored, self.count,
+                                 self.weights, self.lap_b, self.cond)
         if status:
             i = status - 1
             raise SimulationError(
@@ -96,22 +105,23 @@ class Operators:
         return self
 
     def nodes_near(self, targets_mask):
-        """Indices of the nodes that are in ``targets_mask`` or have a neighbour in it."""
-        return near_nodes(targets_mask, self.nbr, self.count)
+        """Indices of the nodes that are in ``targets_mask`` or have a neighbour in it.
+
+        Searched in the neighbour table, whose skin adds a margin: a node just outside the support
+        whose weights a small move of the targets would change is included.
+        """
+        return near_nodes(targets_mask, self.table.nbr, self.table.count)
 
     def args(self):
-        """(nbr, mirrored, count, weights) for the derivative kernels."""
-        return self.nbr, self.mirrored, self.count, self.weights
+        """(start, nbr, mirrored, count, weights) for the derivative kernels."""
+        return self.start, self.nbr, self.mirrored, self.count, self.weights
+
+    def laplacian_args(self):
+        """(start, nbr, mirrored, count, lap_b) for the Brookshaw-Laplacian kernels."""
+        return self.start, self.nbr, self.mirrored, self.count, self.lap_b
 
     def hyperviscous(self, f, parity, scale, work1, work2, out):
-        hyperviscous_term(f, parity, self.nbr, self.mirrored, self.count, self.lap_b, scale,
-                          work1, work2, out)
-        return out
-
-    def hyperviscous_increment(self, f, parity, pinned, scale, dt, n_sub, work, out):
-        """out = change of f over dt under scale * L^3 (n_sub sub-steps, pinned nodes fixed)."""
-        hyperviscous_increment(f, parity, pinned, self.nbr, self.mirrored, self.count, self.lap_b,
-                               scale, dt, n_sub, work[0], work[1], work[2], work[3], out)
+        hyperviscous_term(f, parity, *self.laplacian_args(), scale, work1, work2, out)
         return out
 
     def hyperviscous_spectral_radius(self, scale, start=None, iterations=60):

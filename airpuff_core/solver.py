@@ -28,9 +28,9 @@ import numpy as np
 from .errors import SimulationError
 from .fluid import NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
-from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity, max_speed, tait_pressure,
-                            velocity_derivatives)
-from .kernels.mfpm import derivatives
+from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity, divergence_at,
+                            max_speed, tait_pressure, velocity_derivatives)
+from .kernels.mfpm import derivatives, hyperviscous_flow_increments
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
 from .membrane import (apex_curvature, apex_fit_nodes, build_membrane, jet_pressure,
                        static_equilibrium)
@@ -120,8 +120,7 @@ class CoupledModel:
                                             "p_half", "vx_new", "vy_new", "x_new", "y_new",
                                             "rho_new", "div_new", "x_half", "y_half")}
         self._grad_p = np.zeros((n, 5))
-        self._hv_work = [np.empty(n) for _ in range(4)]
-        self.pinned_none = np.zeros(n, np.bool_)
+        self._hv_work = np.empty((9, n))
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self.last_hv_substeps = 0
@@ -196,13 +195,10 @@ class CoupledModel:
             # the updates below as rates)
             n_hv = max(1, int(math.ceil(dt / self.dt_limits["hyperviscosity"])))
             self.last_hv_substeps = n_hv
-            work = self._hv_work
-            ops_n.hyperviscous_increment(self.rho, 1.0, self.pinned_none, scale, dt, n_hv, work,
-                                         w["hv_rho"])
-            ops_n.hyperviscous_increment(self.vx, -1.0, self.pinned_vx, scale, dt, n_hv, work,
-                                         w["hv_vx"])
-            ops_n.hyperviscous_increment(self.vy, 1.0, self.pinned_vy, scale, dt, n_hv, work,
-                                         w["hv_vy"])
+            hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx,
+                                         self.pinned_vy, *ops_n.laplacian_args(), scale, dt,
+                                         n_hv, self._hv_work,
+                                         w["hv_rho"], w["hv_vx"], w["hv_vy"])
             w["hv_rho"] /= dt
             w["hv_vx"] /= dt
             w["hv_vy"] /= dt
@@ -248,8 +244,9 @@ class CoupledModel:
                 near_cornea = ops_new.nodes_near(self.is_cornea)
             else:
                 ops_new.build(w["x_new"], w["y_new"], t_ms, active=near_cornea)
-            velocity_derivatives(w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
-                                 self._dvx_new, self._dvy_new, w["div_new"])
+            # only the cornea's density enters the coupling: the full field follows convergence
+            divergence_at(cornea, w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
+                          w["div_new"])
             advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
                             w["rho_new"])
             p_new = np.empty(cornea.shape[0])
@@ -270,6 +267,10 @@ class CoupledModel:
                 t_ms, "coupling")
         self.last_iterations = it
         self.last_residual = residual
+        velocity_derivatives(w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
+                             self._dvx_new, self._dvy_new, w["div_new"])
+        advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
+                        w["rho_new"])
 
         # commit the step
         self.X, self.Y, self.VX, self.VY = X, Y, VX, VY

@@ -23,15 +23,35 @@ CORNEA = 3
 
 
 @njit(cache=True)
-def velocity_derivatives(x, vx, vy, nbr, mirrored, count, weights, dvx, dvy, div):
+def velocity_derivatives(x, vx, vy, start, nbr, mirrored, count, weights, dvx, dvy, div):
     """Derivative vectors of vx (odd in x) and vy (even), and the axisymmetric divergence."""
-    derivatives(vx, -1.0, nbr, mirrored, count, weights, dvx)
-    derivatives(vy, 1.0, nbr, mirrored, count, weights, dvy)
+    derivatives(vx, -1.0, start, nbr, mirrored, count, weights, dvx)
+    derivatives(vy, 1.0, start, nbr, mirrored, count, weights, dvy)
     for i in range(x.shape[0]):
         if x[i] < AXIS_EPS:
             div[i] = 2.0 * dvx[i, 0] + dvy[i, 1]
         else:
             div[i] = dvx[i, 0] + dvy[i, 1] + vx[i] / x[i]
+
+
+@njit(cache=True)
+def divergence_at(nodes, x, vx, vy, start, nbr, mirrored, count, weights, div):
+    """The axisymmetric divergence of (vx, vy) at the listed nodes only (the same sums as
+    ``velocity_derivatives``): what a coupling iteration needs at the cornea."""
+    for i in nodes:
+        dvx_dx = 0.0
+        dvy_dy = 0.0
+        vxi = vx[i]
+        vyi = vy[i]
+        for k in range(start[i], start[i] + count[i]):
+            j = nbr[k]
+            fj = -vx[j] if mirrored[k] else vx[j]
+            dvx_dx += weights[k, 0] * (fj - vxi)
+            dvy_dy += weights[k, 1] * (vy[j] - vyi)
+        if x[i] < AXIS_EPS:
+            div[i] = 2.0 * dvx_dx + dvy_dy
+        else:
+            div[i] = dvx_dx + dvy_dy + vxi / x[i]
 
 
 @njit(cache=True)

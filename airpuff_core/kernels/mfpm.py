@@ -31,144 +31,193 @@ from numba import njit
 
 
 @njit(cache=True)
-def _cholesky5(A, L):
-    """A = L L^T for a 5 x 5 SPD matrix.  Returns False when a pivot is not positive."""
-    for i in range(5):
-        for j in range(i + 1):
-            s = A[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if s <= 0.0:
-                    return False
-                L[i, i] = np.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-    return True
+def spd_inverse5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42, a43, a44):
+    """Inverse of a symmetric positive definite 5 x 5 matrix given by its lower triangle.
 
-
-@njit(cache=True)
-def _solve5(L, b, out, z):
-    """Solve L L^T out = b (forward and back substitution); z is a work vector of length 5."""
-    for i in range(5):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * z[k]
-        z[i] = s / L[i, i]
-    for i in range(4, -1, -1):
-        s = z[i]
-        for k in range(i + 1, 5):
-            s -= L[k, i] * out[k]
-        out[i] = s / L[i, i]
-
-
-@njit(cache=True)
-def _wendland(q):
-    """Wendland C2 shape (1-q)^4 (4q+1) on q = r/H in [0, 1] (unnormalised)."""
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
-    return t * t * t * t * (4.0 * q + 1.0)
-
-
-@njit(cache=True)
-def compute_weights(x, y, h, area, kappa, nbr, mirrored, count, cond_max, active, weights, lap_b,
-                    cond):
-    """MFPM pair weights ``weights[i, k, beta]`` and Brookshaw coefficients ``lap_b[i, k]`` for the
-    nodes listed in ``active`` (all nodes, or those near the moving cornea).
-
-    The moment matrix is factored (Cholesky) and inverted once per node; the pair weights are then
-    A^-1 (P_j W_j) with no division in the pair loop.  ``cond[i]`` receives the 1-norm condition
-    number of the scaled moment matrix.  Returns 0, or i+1 for the first node whose matrix is
-    singular or worse than ``cond_max``.
+    A = L L^T (Cholesky), M = L^-1 (lower triangular), A^-1 = M^T M.  Written out in scalars so
+    that the whole factorisation stays in registers (about 130 flops, five square roots and five
+    divisions).  Returns the lower triangle of A^-1 in the argument order, or all NaN when a pivot
+    is not positive (A is not positive definite: the support does not span the quadratics).
     """
-    maxn = nbr.shape[1]
-    A = np.empty((5, 5))
-    L = np.zeros((5, 5))
-    Ainv = np.empty((5, 5))
-    e = np.empty(5)
-    col = np.empty(5)
-    z = np.empty(5)
+    nan = np.nan
+    d = a00
+    if not d > 0.0:
+        return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
+    l00 = np.sqrt(d)
+    r0 = 1.0 / l00
+    l10 = a10 * r0
+    l20 = a20 * r0
+    l30 = a30 * r0
+    l40 = a40 * r0
+    d = a11 - l10 * l10
+    if not d > 0.0:
+        return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
+    l11 = np.sqrt(d)
+    r1 = 1.0 / l11
+    l21 = (a21 - l20 * l10) * r1
+    l31 = (a31 - l30 * l10) * r1
+    l41 = (a41 - l40 * l10) * r1
+    d = a22 - l20 * l20 - l21 * l21
+    if not d > 0.0:
+        return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
+    l22 = np.sqrt(d)
+    r2 = 1.0 / l22
+    l32 = (a32 - l30 * l20 - l31 * l21) * r2
+    l42 = (a42 - l40 * l20 - l41 * l21) * r2
+    d = a33 - l30 * l30 - l31 * l31 - l32 * l32
+    if not d > 0.0:
+        return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
+    l33 = np.sqrt(d)
+    r3 = 1.0 / l33
+    l43 = (a43 - l40 * l30 - l41 * l31 - l42 * l32) * r3
+    d = a44 - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43
+    if not d > 0.0:
+        return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
+    r4 = 1.0 / np.sqrt(d)
+    # M = L^-1, column by column from the diagonal: m_ij = -r_i sum_{k=j}^{i-1} l_ik m_kj
+    m10 = -r1 * (l10 * r0)
+    m21 = -r2 * (l21 * r1)
+    m20 = -r2 * (l20 * r0 + l21 * m10)
+    m32 = -r3 * (l32 * r2)
+    m31 = -r3 * (l31 * r1 + l32 * m21)
+    m30 = -r3 * (l30 * r0 + l31 * m10 + l32 * m20)
+    m43 = -r4 * (l43 * r3)
+    m42 = -r4 * (l42 * r2 + l43 * m32)
+    m41 = -r4 * (l41 * r1 + l42 * m21 + l43 * m31)
+    m40 = -r4 * (l40 * r0 + l41 * m10 + l42 * m20 + l43 * m30)
+    # (A^-1)_ab = sum_{k >= max(a, b)} m_ka m_kb
+    return (r0 * r0 + m10 * m10 + m20 * m20 + m30 * m30 + m40 * m40,
+            r1 * m10 + m21 * m20 + m31 * m30 + m41 * m40,
+            r1 * r1 + m21 * m21 + m31 * m31 + m41 * m41,
+            r2 * m20 + m32 * m30 + m42 * m40,
+            r2 * m21 + m32 * m31 + m42 * m41,
+            r2 * r2 + m32 * m32 + m42 * m42,
+            r3 * m30 + m43 * m40,
+            r3 * m31 + m43 * m41,
+            r3 * m32 + m43 * m42,
+            r3 * r3 + m43 * m43,
+            r4 * m40,
+            r4 * m41,
+            r4 * m42,
+            r4 * m43,
+            r4 * r4)
+
+
+@njit(cache=True)
+def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42, a43, a44):
+    """1-norm (largest absolute column sum) of a symmetric 5 x 5 matrix from its lower triangle."""
+    c0 = abs(a00) + abs(a10) + abs(a20) + abs(a30) + abs(a40)
+    c1 = abs(a10) + abs(a11) + abs(a21) + abs(a31) + abs(a41)
+    c2 = abs(a20) + abs(a21) + abs(a22) + abs(a32) + abs(a42)
+    c3 = abs(a30) + abs(a31) + abs(a32) + abs(a33) + abs(a43)
+    c4 = abs(a40) + abs(a41) + abs(a42) + abs(a43) + abs(a44)
+    return max(c0, c1, c2, c3, c4)
+
+
+@njit(cache=True)
+def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count, cond_max,
+                    active, start, nbr, mirrored, count, weights, lap_b, cond):
+    """MFPM pair weights and Brookshaw coefficients for the nodes listed in ``active`` (all nodes,
+    or those near the moving cornea).
+
+    The candidate pairs come from the neighbour table (``table_*``, searched with a skin); only the
+    pairs inside the support (r < kappa max(h_i, h_j)) are kept, in the table's order, as node i's
+    pairs p = start[i] ... start[i] + count[i] - 1 of the flat arrays ``nbr[p]``, ``mirrored[p]``,
+    ``weights[p, beta]`` and ``lap_b[p]`` (start[i + 1] - start[i] >= the table's count for i).
+    Contiguous pair data keep the derivative loops in cache.  A pair outside the support has W = 0
+    and contributes exactly nothing, so dropping it changes no result.
+
+    The moment matrix is accumulated in registers and inverted once per node (``spd_inverse5``);
+    the pair weights are then A^-1 (P_j W_j) with no division in the pair loop.  ``cond[i]``
+    receives the 1-norm condition number of the scaled moment matrix.  Returns 0, or i+1 for the
+    first node whose matrix is singular or worse than ``cond_max``.
+    """
+    maxn = table_nbr.shape[1]
     wk = np.empty(maxn)
     uk = np.empty(maxn)
     vk = np.empty(maxn)
+    lap_scale = 2.0 * 140.0 / np.pi
     status = 0
     for i in active:
-        s = kappa * h[i]
-        inv_s = 1.0 / s
-        for a in range(5):
-            for b in range(5):
-                A[a, b] = 0.0
-        for k in range(count[i]):
-            j = nbr[i, k]
-            xj = -x[j] if mirrored[i, k] else x[j]
-            dx = xj - x[i]
-            dy = y[j] - y[i]
-            r = np.sqrt(dx * dx + dy * dy)
-            inv_H = 1.0 / (kappa * max(h[i], h[j]))
-            q = r * inv_H
-            w = _wendland(q)
+        xi = x[i]
+        yi = y[i]
+        hi = h[i]
+        inv_s = 1.0 / (kappa * hi)
+        base = start[i]
+        a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
+        a40 = a41 = a42 = a43 = a44 = 0.0
+        m = 0
+        for kk in range(table_count[i]):
+            j = table_nbr[i, kk]
+            mir = table_mirrored[i, kk]
+            xj = -x[j] if mir else x[j]
+            dx = xj - xi
+            dy = y[j] - yi
+            H = kappa * max(hi, h[j])
+            r2 = dx * dx + dy * dy
+            if r2 > 1.0000001 * H * H:
+                continue  # well outside the support (the exact test q < 1 follows)
+            inv_H = 1.0 / H
+            q = np.sqrt(r2) * inv_H
+            if q >= 1.0:
+                continue
+            tq = 1.0 - q
+            t3 = tq * tq * tq
+            w = t3 * tq * (4.0 * q + 1.0)  # Wendland C2 shape (1-q)^4 (4q+1)
             u = dx * inv_s
             v = dy * inv_s
-            wk[k] = w
-            uk[k] = u
-            vk[k] = v
+            nbr[base + m] = j
+            mirrored[base + m] = mir
+            wk[m] = w
+            uk[m] = u
+            vk[m] = v
+            # Brookshaw coefficient: 2 A_j (-dW/dr)/r with W = 7/(pi H^2) (1-q)^4 (4q+1)
+            ih2 = inv_H * inv_H
+            lap_b[base + m] = area[j] * lap_scale * t3 * ih2 * ih2
+            m += 1
             p2 = 0.5 * u * u
             p3 = u * v
             p4 = 0.5 * v * v
             # lower triangle of sum_j w p p^T
-            A[0, 0] += w * u * u
-            A[1, 0] += w * v * u
-            A[1, 1] += w * v * v
-            A[2, 0] += w * p2 * u
-            A[2, 1] += w * p2 * v
-            A[2, 2] += w * p2 * p2
-            A[3, 0] += w * p3 * u
-            A[3, 1] += w * p3 * v
-            A[3, 2] += w * p3 * p2
-            A[3, 3] += w * p3 * p3
-            A[4, 0] += w * p4 * u
-            A[4, 1] += w * p4 * v
-            A[4, 2] += w * p4 * p2
-            A[4, 3] += w * p4 * p3
-            A[4, 4] += w * p4 * p4
-            # Brookshaw coefficient: 2 A_j (-dW/dr)/r with W = 7/(pi H^2) (1-q)^4 (4q+1)
-            t = 1.0 - q if q < 1.0 else 0.0
-            ih2 = inv_H * inv_H
-            lap_b[i, k] = 2.0 * area[j] * (140.0 / np.pi) * t * t * t * ih2 * ih2
-        for a in range(5):
-            for b in range(a + 1, 5):
-                A[a, b] = A[b, a]
-        ok = _cholesky5(A, L)
-        if not ok:
+            a00 += w * u * u
+            a10 += w * v * u
+            a11 += w * v * v
+            a20 += w * p2 * u
+            a21 += w * p2 * v
+            a22 += w * p2 * p2
+            a30 += w * p3 * u
+            a31 += w * p3 * v
+            a32 += w * p3 * p2
+            a33 += w * p3 * p3
+            a40 += w * p4 * u
+            a41 += w * p4 * v
+            a42 += w * p4 * p2
+            a43 += w * p4 * p3
+            a44 += w * p4 * p4
+        count[i] = m
+        (i00, i10, i11, i20, i21, i22, i30, i31, i32, i33,
+         i40, i41, i42, i43, i44) = spd_inverse5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33,
+                                                 a40, a41, a42, a43, a44)
+        if np.isnan(i00):
             cond[i] = np.inf
             if status == 0:
                 status = i + 1
             continue
-        # explicit inverse (five solves) for the weights and the condition number
-        anorm = 0.0
-        for b in range(5):
-            sacc = 0.0
-            for a in range(5):
-                sacc += abs(A[a, b])
-            anorm = max(anorm, sacc)
-        inorm = 0.0
-        for b in range(5):
-            for a in range(5):
-                e[a] = 0.0
-            e[b] = 1.0
-            _solve5(L, e, col, z)
-            sacc = 0.0
-            for a in range(5):
-                Ainv[a, b] = col[a]
-                sacc += abs(col[a])
-            inorm = max(inorm, sacc)
-        cond[i] = anorm * inorm
+        cond[i] = (_norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
+                               a43, a44)
+                   * _norm1_sym5(i00, i10, i11, i20, i21, i22, i30, i31, i32, i33, i40, i41, i42,
+                                 i43, i44))
         if not (cond[i] < cond_max) and status == 0:
             status = i + 1
+        # rows of A^-1 with the monomial scaling s^-1 (first derivatives) or s^-2 (second)
         s1 = inv_s
         s2 = inv_s * inv_s
-        for k in range(count[i]):
+        c00 = s1 * i00; c01 = s1 * i10; c02 = s1 * i20; c03 = s1 * i30; c04 = s1 * i40
+        c10 = s1 * i10; c11 = s1 * i11; c12 = s1 * i21; c13 = s1 * i31; c14 = s1 * i41
+        c20 = s2 * i20; c21 = s2 * i21; c22 = s2 * i22; c23 = s2 * i32; c24 = s2 * i42
+        c30 = s2 * i30; c31 = s2 * i31; c32 = s2 * i32; c33 = s2 * i33; c34 = s2 * i43
+        c40 = s2 * i40; c41 = s2 * i41; c42 = s2 * i42; c43 = s2 * i43; c44 = s2 * i44
+        for k in range(m):
             w = wk[k]
             u = uk[k]
             v = vk[k]
@@ -177,21 +226,16 @@ def compute_weights(x, y, h, area, kappa, nbr, mirrored, count, cond_max, active
             p2 = 0.5 * u * u * w
             p3 = u * v * w
             p4 = 0.5 * v * v * w
-            weights[i, k, 0] = s1 * (Ainv[0, 0] * p0 + Ainv[0, 1] * p1 + Ainv[0, 2] * p2
-                                     + Ainv[0, 3] * p3 + Ainv[0, 4] * p4)
-            weights[i, k, 1] = s1 * (Ainv[1, 0] * p0 + Ainv[1, 1] * p1 + Ainv[1, 2] * p2
-                                     + Ainv[1, 3] * p3 + Ainv[1, 4] * p4)
-            weights[i, k, 2] = s2 * (Ainv[2, 0] * p0 + Ainv[2, 1] * p1 + Ainv[2, 2] * p2
-                                     + Ainv[2, 3] * p3 + Ainv[2, 4] * p4)
-            weights[i, k, 3] = s2 * (Ainv[3, 0] * p0 + Ainv[3, 1] * p1 + Ainv[3, 2] * p2
-                                     + Ainv[3, 3] * p3 + Ainv[3, 4] * p4)
-            weights[i, k, 4] = s2 * (Ainv[4, 0] * p0 + Ainv[4, 1] * p1 + Ainv[4, 2] * p2
-                                     + Ainv[4, 3] * p3 + Ainv[4, 4] * p4)
+            weights[base + k, 0] = c00 * p0 + c01 * p1 + c02 * p2 + c03 * p3 + c04 * p4
+            weights[base + k, 1] = c10 * p0 + c11 * p1 + c12 * p2 + c13 * p3 + c14 * p4
+            weights[base + k, 2] = c20 * p0 + c21 * p1 + c22 * p2 + c23 * p3 + c24 * p4
+            weights[base + k, 3] = c30 * p0 + c31 * p1 + c32 * p2 + c33 * p3 + c34 * p4
+            weights[base + k, 4] = c40 * p0 + c41 * p1 + c42 * p2 + c43 * p3 + c44 * p4
     return status
 
 
 @njit(cache=True)
-def derivatives(f, parity, nbr, mirrored, count, weights, out):
+def derivatives(f, parity, start, nbr, mirrored, count, weights, out):
     """out[i, :] = (f_x, f_y, f_xx, f_xy, f_yy) at every node.
 
     ``parity`` is +1 for a field even in x (density, pressure, v_y), -1 for an odd one (v_x).
@@ -204,15 +248,15 @@ def derivatives(f, parity, nbr, mirrored, count, weights, out):
         d3 = 0.0
         d4 = 0.0
         fi = f[i]
-        for k in range(count[i]):
-            j = nbr[i, k]
-            fj = parity * f[j] if mirrored[i, k] else f[j]
+        for k in range(start[i], start[i] + count[i]):
+            j = nbr[k]
+            fj = parity * f[j] if mirrored[k] else f[j]
             df = fj - fi
-            d0 += weights[i, k, 0] * df
-            d1 += weights[i, k, 1] * df
-            d2 += weights[i, k, 2] * df
-            d3 += weights[i, k, 3] * df
-            d4 += weights[i, k, 4] * df
+            d0 += weights[k, 0] * df
+            d1 += weights[k, 1] * df
+            d2 += weights[k, 2] * df
+            d3 += weights[k, 3] * df
+            d4 += weights[k, 4] * df
         out[i, 0] = d0
         out[i, 1] = d1
         out[i, 2] = d2
@@ -221,29 +265,29 @@ def derivatives(f, parity, nbr, mirrored, count, weights, out):
 
 
 @njit(cache=True)
-def brookshaw_laplacian(f, parity, nbr, mirrored, count, lap_b, out):
+def brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, out):
     """out_i = sum_j b_ij (f_j - f_i): the sign-definite SPH Laplacian."""
     n = f.shape[0]
     for i in range(n):
         acc = 0.0
         fi = f[i]
-        for k in range(count[i]):
-            j = nbr[i, k]
-            fj = parity * f[j] if mirrored[i, k] else f[j]
-            acc += lap_b[i, k] * (fj - fi)
+        for k in range(start[i], start[i] + count[i]):
+            j = nbr[k]
+            fj = parity * f[j] if mirrored[k] else f[j]
+            acc += lap_b[k] * (fj - fi)
         out[i] = acc
 
 
 @njit(cache=True)
-def hyperviscous_term(f, parity, nbr, mirrored, count, lap_b, scale, work1, work2, out):
+def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, scale, work1, work2, out):
     """out_i = scale_i (L^3 f)_i, with L the Brookshaw Laplacian (scale_i = gamma c h_i^5).
 
     L^3 is negative semi-definite, so adding ``out`` to df/dt damps the grid-scale modes most
     (eigenvalues of L^3 grow like k^6) and the resolved flow very little.
     """
-    brookshaw_laplacian(f, parity, nbr, mirrored, count, lap_b, work1)
-    brookshaw_laplacian(work1, parity, nbr, mirrored, count, lap_b, work2)
-    brookshaw_laplacian(work2, parity, nbr, mirrored, count, lap_b, out)
+    brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, work1)
+    brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
+    brookshaw_laplacian(work2, parity, start, nbr, mirrored, count, lap_b, out)
     for i in range(f.shape[0]):
         out[i] *= scale[i]
 
@@ -268,22 +312,61 @@ def near_nodes(mask, nbr, count):
 
 
 @njit(cache=True)
-def hyperviscous_increment(f, parity, pinned, nbr, mirrored, count, lap_b, scale, dt, n_sub,
-                           work1, work2, work3, g, out):
-    """Change of f over dt under df/dt = scale L^3 f, by n_sub explicit Euler sub-steps.
+def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, out_vx, out_vy):
+    """The Brookshaw Laplacian of the three flow fields in one pass over the pairs (rho and v_y
+    even in x, v_x odd): each field's sum is the one ``brookshaw_laplacian`` forms."""
+    for i in range(rho.shape[0]):
+        acc_r = 0.0
+        acc_x = 0.0
+        acc_y = 0.0
+        ri = rho[i]
+        xi = vx[i]
+        yi = vy[i]
+        for k in range(start[i], start[i] + count[i]):
+            j = nbr[k]
+            b = lap_b[k]
+            xj = -vx[j] if mirrored[k] else vx[j]
+            acc_r += b * (rho[j] - ri)
+            acc_x += b * (xj - xi)
+            acc_y += b * (vy[j] - yi)
+        out_rho[i] = acc_r
+        out_vx[i] = acc_x
+        out_vy[i] = acc_y
 
-    ``out = g(dt) - f`` with g(0) = f.  Nodes with ``pinned`` keep their value (Dirichlet nodes:
-    walls, the cornea, v_x on the axis).  Sub-cycling keeps dt/n_sub within the stability limit of
-    this stiff term without shrinking the step of the whole solver.
+
+@njit(cache=True)
+def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, mirrored, count,
+                                 lap_b,
+                                 scale, dt, n_sub, work, out_rho, out_vx, out_vy):
+    """Change of rho, v_x and v_y over dt under d f/dt = scale L^3 f, by n_sub explicit Euler
+    sub-steps: out_f = g(dt) - f with g(0) = f.
+
+    Nodes with ``pinned_vx`` / ``pinned_vy`` keep their velocity component (Dirichlet nodes: walls,
+    the cornea, v_x on the axis); no density is pinned.  Sub-cycling keeps dt/n_sub within the
+    stability limit of this stiff term without shrinking the step of the whole solver.  One pass
+    over the pairs serves the three fields.  ``work`` is a (9, n) scratch array.
     """
-    n = f.shape[0]
+    n = rho.shape[0]
     h = dt / n_sub
+    g_r, g_x, g_y = work[0], work[1], work[2]
+    a_r, a_x, a_y = work[3], work[4], work[5]
+    b_r, b_x, b_y = work[6], work[7], work[8]
     for i in range(n):
-        g[i] = f[i]
+        g_r[i] = rho[i]
+        g_x[i] = vx[i]
+        g_y[i] = vy[i]
     for _ in range(n_sub):
-        hyperviscous_term(g, parity, nbr, mirrored, count, lap_b, scale, work1, work2, work3)
+        _brookshaw_flow(g_r, g_x, g_y, start, nbr, mirrored, count, lap_b, a_r, a_x, a_y)
+        _brookshaw_flow(a_r, a_x, a_y, start, nbr, mirrored, count, lap_b, b_r, b_x, b_y)
+        _brookshaw_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_b, a_r, a_x, a_y)
         for i in range(n):
-            if not pinned[i]:
-                g[i] += h * work3[i]
+            s = scale[i]
+            g_r[i] += h * (a_r[i] * s)
+            if not pinned_vx[i]:
+                g_x[i] += h * (a_x[i] * s)
+            if not pinned_vy[i]:
+                g_y[i] += h * (a_y[i] * s)
     for i in range(n):
-        out[i] = g[i] - f[i]
+        out_rho[i] = g_r[i] - rho[i]
+        out_vx[i] = g_x[i] - vx[i]
+        out_vy[i] = g_y[i] - vy[i]
