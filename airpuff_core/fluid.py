@@ -74,7 +74,7 @@ class Operators:
         self.count = np.zeros(n, np.int64)
         self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.int32)
         self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
-        self.weights = np.zeros((n * MAX_NEIGHBOURS, 5))
+        self.weights = np.zeros((5, n * MAX_NEIGHBOURS))  # one row per derivative
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
         self.cond = np.zeros(n)
         self.all_nodes = np.arange(n)

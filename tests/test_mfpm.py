@@ -12,7 +12,7 @@ from airpuff_core.errors import SimulationError
 from airpuff_core.fluid import Operators
 from airpuff_core.geometry import build_chamber
 from airpuff_core.kernels.fluid import AXIS, CORNEA, WALL
-from airpuff_core.kernels.mfpm import derivatives
+from airpuff_core.kernels.mfpm import derivatives, spd_inverse5
 from airpuff_core.solver import KAPPA
 
 R, RP, A0 = 7e-3, 2.04e-3, math.radians(60)
@@ -112,3 +112,19 @@ def test_ill_conditioned_support_is_an_error():
     ch = build_chamber("sector", "isotropic", "coarse", R, RP, A0)
     with pytest.raises(SimulationError, match="ill-conditioned"):
         Operators(ch.h, ch.area, 1.2).build(ch.x, ch.y)
+
+
+def test_spd_inverse5_matches_numpy_and_flags_indefinite_matrices():
+    """The written-out LDL^T inverse agrees with numpy's LU inverse to round-off (relative to the
+    condition number), and an indefinite matrix gives NaN (the caller's singular-support error)."""
+    rng = np.random.default_rng(3)
+    lower = [(i, j) for i in range(5) for j in range(i + 1)]
+    for _ in range(100):
+        B = rng.standard_normal((5, 7))
+        A = B @ B.T + 1e-3 * np.eye(5)
+        got = np.array(spd_inverse5(*[A[i, j] for i, j in lower]))
+        ref = np.linalg.inv(A)
+        want = np.array([ref[i, j] for i, j in lower])
+        assert np.max(np.abs(got - want)) <= 1e-14 * np.linalg.cond(A) * np.max(np.abs(want))
+    indefinite = np.diag([1.0, 2.0, 3.0, 4.0, -1.0])
+    assert np.all(np.isnan(spd_inverse5(*[indefinite[i, j] for i, j in lower])))

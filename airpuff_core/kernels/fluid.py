@@ -46,8 +46,8 @@ def divergence_at(nodes, x, vx, vy, start, nbr, mirrored, count, weights, div):
         for k in range(start[i], start[i] + count[i]):
             j = nbr[k]
             fj = -vx[j] if mirrored[k] else vx[j]
-            dvx_dx += weights[k, 0] * (fj - vxi)
-            dvy_dy += weights[k, 1] * (vy[j] - vyi)
+            dvx_dx += weights[0, k] * (fj - vxi)
+            dvy_dy += weights[1, k] * (vy[j] - vyi)
         if x[i] < AXIS_EPS:
             div[i] = 2.0 * dvx_dx + dvy_dy
         else:

@@ -34,73 +34,76 @@ from numba import njit
 def spd_inverse5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42, a43, a44):
     """Inverse of a symmetric positive definite 5 x 5 matrix given by its lower triangle.
 
-    A = L L^T (Cholesky), M = L^-1 (lower triangular), A^-1 = M^T M.  Written out in scalars so
-    that the whole factorisation stays in registers (about 130 flops, five square roots and five
-    divisions).  Returns the lower triangle of A^-1 in the argument order, or all NaN when a pivot
-    is not positive (A is not positive definite: the support does not span the quadratics).
+    A = L D L^T (unit lower triangular L, diagonal D > 0), N = L^-1, A^-1 = N^T D^-1 N.  Written
+    out in scalars so that the factorisation stays in registers; the only long-latency operations
+    are the five reciprocals 1/d_k (no square roots).  Returns the lower triangle of A^-1 in the
+    argument order, or all NaN when a pivot d_k is not positive (A is not positive definite: the
+    support does not span the quadratics).
     """
     nan = np.nan
-    d = a00
-    if not d > 0.0:
+    if not a00 > 0.0:
         return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
-    l00 = np.sqrt(d)
-    r0 = 1.0 / l00
-    l10 = a10 * r0
-    l20 = a20 * r0
-    l30 = a30 * r0
-    l40 = a40 * r0
-    d = a11 - l10 * l10
-    if not d > 0.0:
+    e0 = 1.0 / a00
+    # column k: g_ik = a_ik - sum_{m<k} l_im g_km, l_ik = g_ik / d_k, d_k = a_kk - sum_m l_km g_km
+    l10 = a10 * e0
+    l20 = a20 * e0
+    l30 = a30 * e0
+    l40 = a40 * e0
+    d1 = a11 - l10 * a10
+    if not d1 > 0.0:
         return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
-    l11 = np.sqrt(d)
-    r1 = 1.0 / l11
-    l21 = (a21 - l20 * l10) * r1
-    l31 = (a31 - l30 * l10) * r1
-    l41 = (a41 - l40 * l10) * r1
-    d = a22 - l20 * l20 - l21 * l21
-    if not d > 0.0:
+    e1 = 1.0 / d1
+    g21 = a21 - l20 * a10
+    g31 = a31 - l30 * a10
+    g41 = a41 - l40 * a10
+    l21 = g21 * e1
+    l31 = g31 * e1
+    l41 = g41 * e1
+    d2 = a22 - l20 * a20 - l21 * g21
+    if not d2 > 0.0:
         return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
-    l22 = np.sqrt(d)
-    r2 = 1.0 / l22
-    l32 = (a32 - l30 * l20 - l31 * l21) * r2
-    l42 = (a42 - l40 * l20 - l41 * l21) * r2
-    d = a33 - l30 * l30 - l31 * l31 - l32 * l32
-    if not d > 0.0:
+    e2 = 1.0 / d2
+    g32 = a32 - l30 * a20 - l31 * g21
+    g42 = a42 - l40 * a20 - l41 * g21
+    l32 = g32 * e2
+    l42 = g42 * e2
+    d3 = a33 - l30 * a30 - l31 * g31 - l32 * g32
+    if not d3 > 0.0:
         return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
-    l33 = np.sqrt(d)
-    r3 = 1.0 / l33
-    l43 = (a43 - l40 * l30 - l41 * l31 - l42 * l32) * r3
-    d = a44 - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43
-    if not d > 0.0:
+    e3 = 1.0 / d3
+    g43 = a43 - l40 * a30 - l41 * g31 - l42 * g32
+    l43 = g43 * e3
+    d4 = a44 - l40 * a40 - l41 * g41 - l42 * g42 - l43 * g43
+    if not d4 > 0.0:
         return nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan
-    r4 = 1.0 / np.sqrt(d)
-    # M = L^-1, column by column from the diagonal: m_ij = -r_i sum_{k=j}^{i-1} l_ik m_kj
-    m10 = -r1 * (l10 * r0)
-    m21 = -r2 * (l21 * r1)
-    m20 = -r2 * (l20 * r0 + l21 * m10)
-    m32 = -r3 * (l32 * r2)
-    m31 = -r3 * (l31 * r1 + l32 * m21)
-    m30 = -r3 * (l30 * r0 + l31 * m10 + l32 * m20)
-    m43 = -r4 * (l43 * r3)
-    m42 = -r4 * (l42 * r2 + l43 * m32)
-    m41 = -r4 * (l41 * r1 + l42 * m21 + l43 * m31)
-    m40 = -r4 * (l40 * r0 + l41 * m10 + l42 * m20 + l43 * m30)
-    # (A^-1)_ab = sum_{k >= max(a, b)} m_ka m_kb
-    return (r0 * r0 + m10 * m10 + m20 * m20 + m30 * m30 + m40 * m40,
-            r1 * m10 + m21 * m20 + m31 * m30 + m41 * m40,
-            r1 * r1 + m21 * m21 + m31 * m31 + m41 * m41,
-            r2 * m20 + m32 * m30 + m42 * m40,
-            r2 * m21 + m32 * m31 + m42 * m41,
-            r2 * r2 + m32 * m32 + m42 * m42,
-            r3 * m30 + m43 * m40,
-            r3 * m31 + m43 * m41,
-            r3 * m32 + m43 * m42,
-            r3 * r3 + m43 * m43,
-            r4 * m40,
-            r4 * m41,
-            r4 * m42,
-            r4 * m43,
-            r4 * r4)
+    e4 = 1.0 / d4
+    # N = L^-1 (unit lower triangular): n_ij = -(l_ij + sum_{j<k<i} l_ik n_kj)
+    n10 = -l10
+    n21 = -l21
+    n20 = -(l20 + l21 * n10)
+    n32 = -l32
+    n31 = -(l31 + l32 * n21)
+    n30 = -(l30 + l31 * n10 + l32 * n20)
+    n43 = -l43
+    n42 = -(l42 + l43 * n32)
+    n41 = -(l41 + l42 * n21 + l43 * n31)
+    n40 = -(l40 + l41 * n10 + l42 * n20 + l43 * n30)
+    # (A^-1)_ab = sum_{k >= max(a, b)} n_ka n_kb / d_k, with n_kk = 1
+    return (e0 + n10 * n10 * e1 + n20 * n20 * e2 + n30 * n30 * e3 + n40 * n40 * e4,
+            n10 * e1 + n21 * n20 * e2 + n31 * n30 * e3 + n41 * n40 * e4,
+            e1 + n21 * n21 * e2 + n31 * n31 * e3 + n41 * n41 * e4,
+            n20 * e2 + n32 * n30 * e3 + n42 * n40 * e4,
+            n21 * e2 + n32 * n31 * e3 + n42 * n41 * e4,
+            e2 + n32 * n32 * e3 + n42 * n42 * e4,
+            n30 * e3 + n43 * n40 * e4,
+            n31 * e3 + n43 * n41 * e4,
+            n32 * e3 + n43 * n42 * e4,
+            e3 + n43 * n43 * e4,
+            n40 * e4,
+            n41 * e4,
+            n42 * e4,
+            n43 * e4,
+            e4)
 
 
 @njit(cache=True)
@@ -114,7 +117,7 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
     return max(c0, c1, c2, c3, c4)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
 def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count, cond_max,
                     active, start, nbr, mirrored, count, weights, lap_b, cond):
     """MFPM pair weights and Brookshaw coefficients for the nodes listed in ``active`` (all nodes,
@@ -123,29 +126,38 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
     The candidate pairs come from the neighbour table (``table_*``, searched with a skin); only the
     pairs inside the support (r < kappa max(h_i, h_j)) are kept, in the table's order, as node i's
     pairs p = start[i] ... start[i] + count[i] - 1 of the flat arrays ``nbr[p]``, ``mirrored[p]``,
-    ``weights[p, beta]`` and ``lap_b[p]`` (start[i + 1] - start[i] >= the table's count for i).
+    ``weights[beta, p]`` and ``lap_b[p]`` (start[i + 1] - start[i] >= the table's count for i).
     Contiguous pair data keep the derivative loops in cache.  A pair outside the support has W = 0
     and contributes exactly nothing, so dropping it changes no result.
 
-    The moment matrix is accumulated in registers and inverted once per node (``spd_inverse5``);
-    the pair weights are then A^-1 (P_j W_j) with no division in the pair loop.  ``cond[i]``
+    The moment matrix is accumulated in registers (a branch-free loop over the gathered pairs,
+    which LLVM vectorises: the fastmath flags allow only reassociation and fused multiply-adds, so
+    NaN and infinity keep their meaning) and inverted once per node (``spd_inverse5``); the pair
+    weights are then A^-1 (P_j W_j) with no division in the pair loop.  ``cond[i]``
     receives the 1-norm condition number of the scaled moment matrix.  Returns 0, or i+1 for the
     first node whose matrix is singular or worse than ``cond_max``.
     """
     maxn = table_nbr.shape[1]
-    wk = np.empty(maxn)
+    rk = np.empty(maxn)
     uk = np.empty(maxn)
     vk = np.empty(maxn)
+    ik = np.empty(maxn)
+    ck = np.empty(maxn)
+    wk = np.empty(maxn)
+    inv_h = np.empty(h.shape[0])
+    for j in range(h.shape[0]):
+        inv_h[j] = 1.0 / h[j]
+    inv_kappa = 1.0 / kappa
     lap_scale = 2.0 * 140.0 / np.pi
     status = 0
     for i in active:
         xi = x[i]
         yi = y[i]
         hi = h[i]
-        inv_s = 1.0 / (kappa * hi)
+        inv_hi = inv_h[i]
+        inv_s = inv_kappa * inv_hi
         base = start[i]
-        a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
-        a40 = a41 = a42 = a43 = a44 = 0.0
+        # 1. the table's pairs inside the support, gathered into contiguous scratch arrays
         m = 0
         for kk in range(table_count[i]):
             j = table_nbr[i, kk]
@@ -155,30 +167,35 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
             dy = y[j] - yi
             H = kappa * max(hi, h[j])
             r2 = dx * dx + dy * dy
-            if r2 > 1.0000001 * H * H:
-                continue  # well outside the support (the exact test q < 1 follows)
-            inv_H = 1.0 / H
-            q = np.sqrt(r2) * inv_H
-            if q >= 1.0:
+            if r2 >= H * H:
                 continue
-            tq = 1.0 - q
-            t3 = tq * tq * tq
-            w = t3 * tq * (4.0 * q + 1.0)  # Wendland C2 shape (1-q)^4 (4q+1)
-            u = dx * inv_s
-            v = dy * inv_s
             nbr[base + m] = j
             mirrored[base + m] = mir
-            wk[m] = w
-            uk[m] = u
-            vk[m] = v
-            # Brookshaw coefficient: 2 A_j (-dW/dr)/r with W = 7/(pi H^2) (1-q)^4 (4q+1)
+            rk[m] = r2
+            uk[m] = dx * inv_s
+            vk[m] = dy * inv_s
+            inv_H = inv_kappa * min(inv_hi, inv_h[j])
+            ik[m] = inv_H
             ih2 = inv_H * inv_H
-            lap_b[base + m] = area[j] * lap_scale * t3 * ih2 * ih2
+            ck[m] = area[j] * lap_scale * ih2 * ih2
             m += 1
+        count[i] = m
+        # 2. kernel values, Brookshaw coefficients and the moment matrix (a branch-free loop)
+        a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
+        a40 = a41 = a42 = a43 = a44 = 0.0
+        for k in range(m):
+            q = np.sqrt(rk[k]) * ik[k]
+            u = uk[k]
+            v = vk[k]
+            tq = max(1.0 - q, 0.0)  # rounding may put q at 1 for r just below H: W = 0 there
+            t3 = tq * tq * tq
+            w = t3 * tq * (4.0 * q + 1.0)  # Wendland C2 shape (1-q)^4 (4q+1)
+            wk[k] = w
+            # Brookshaw coefficient: 2 A_j (-dW/dr)/r with W = 7/(pi H^2) (1-q)^4 (4q+1)
+            lap_b[base + k] = ck[k] * t3
             p2 = 0.5 * u * u
             p3 = u * v
             p4 = 0.5 * v * v
-            # lower triangle of sum_j w p p^T
             a00 += w * u * u
             a10 += w * v * u
             a11 += w * v * v
@@ -194,7 +211,6 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
             a42 += w * p4 * p2
             a43 += w * p4 * p3
             a44 += w * p4 * p4
-        count[i] = m
         (i00, i10, i11, i20, i21, i22, i30, i31, i32, i33,
          i40, i41, i42, i43, i44) = spd_inverse5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33,
                                                  a40, a41, a42, a43, a44)
@@ -209,7 +225,6 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
                                  i43, i44))
         if not (cond[i] < cond_max) and status == 0:
             status = i + 1
-        # rows of A^-1 with the monomial scaling s^-1 (first derivatives) or s^-2 (second)
         s1 = inv_s
         s2 = inv_s * inv_s
         c00 = s1 * i00; c01 = s1 * i10; c02 = s1 * i20; c03 = s1 * i30; c04 = s1 * i40
@@ -217,6 +232,7 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
         c20 = s2 * i20; c21 = s2 * i21; c22 = s2 * i22; c23 = s2 * i32; c24 = s2 * i42
         c30 = s2 * i30; c31 = s2 * i31; c32 = s2 * i32; c33 = s2 * i33; c34 = s2 * i43
         c40 = s2 * i40; c41 = s2 * i41; c42 = s2 * i42; c43 = s2 * i43; c44 = s2 * i44
+        # 3. pair weights A^-1 P_j W_j, one row per derivative
         for k in range(m):
             w = wk[k]
             u = uk[k]
@@ -226,11 +242,11 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
             p2 = 0.5 * u * u * w
             p3 = u * v * w
             p4 = 0.5 * v * v * w
-            weights[base + k, 0] = c00 * p0 + c01 * p1 + c02 * p2 + c03 * p3 + c04 * p4
-            weights[base + k, 1] = c10 * p0 + c11 * p1 + c12 * p2 + c13 * p3 + c14 * p4
-            weights[base + k, 2] = c20 * p0 + c21 * p1 + c22 * p2 + c23 * p3 + c24 * p4
-            weights[base + k, 3] = c30 * p0 + c31 * p1 + c32 * p2 + c33 * p3 + c34 * p4
-            weights[base + k, 4] = c40 * p0 + c41 * p1 + c42 * p2 + c43 * p3 + c44 * p4
+            weights[0, base + k] = c00 * p0 + c01 * p1 + c02 * p2 + c03 * p3 + c04 * p4
+            weights[1, base + k] = c10 * p0 + c11 * p1 + c12 * p2 + c13 * p3 + c14 * p4
+            weights[2, base + k] = c20 * p0 + c21 * p1 + c22 * p2 + c23 * p3 + c24 * p4
+            weights[3, base + k] = c30 * p0 + c31 * p1 + c32 * p2 + c33 * p3 + c34 * p4
+            weights[4, base + k] = c40 * p0 + c41 * p1 + c42 * p2 + c43 * p3 + c44 * p4
     return status
 
 
@@ -252,11 +268,11 @@ def derivatives(f, parity, start, nbr, mirrored, count, weights, out):
             j = nbr[k]
             fj = parity * f[j] if mirrored[k] else f[j]
             df = fj - fi
-            d0 += weights[k, 0] * df
-            d1 += weights[k, 1] * df
-            d2 += weights[k, 2] * df
-            d3 += weights[k, 3] * df
-            d4 += weights[k, 4] * df
+            d0 += weights[0, k] * df
+            d1 += weights[1, k] * df
+            d2 += weights[2, k] * df
+            d3 += weights[3, k] * df
+            d4 += weights[4, k] * df
         out[i, 0] = d0
         out[i, 1] = d1
         out[i, 2] = d2
