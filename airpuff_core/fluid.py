@@ -11,7 +11,7 @@ import numpy as np
 
 from .errors import SimulationError
 from .kernels.mfpm import compute_weights, hyperviscous_term, near_nodes
-from .kernels.neighbours import build_neighbours
+from .kernels.neighbours import build_neighbours, max_squared_move
 
 MAX_NEIGHBOURS = 128
 COND_MAX = 1e8  # largest accepted 1-norm condition number of a scaled moment matrix
@@ -39,7 +39,7 @@ class NeighbourTable:
     def update(self, x, y, time_ms=None):
         """Search again if some node moved more than half the skin since the last search."""
         if self.x_ref is not None:
-            move2 = np.max((x - self.x_ref) ** 2 + (y - self.y_ref) ** 2)
+            move2 = max_squared_move(x, y, self.x_ref, self.y_ref)
             if move2 < self.max_move ** 2:  # False for NaN: a blown-up state is searched, and fails
                 return
         status = build_neighbours(x, y, self.h, self.kappa * (1.0 + self.skin), self.nbr,
@@ -53,8 +53,12 @@ class NeighbourTable:
                 f"node {status - 1} has more than {MAX_NEIGHBOURS} neighbours"
                 + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms,
                 "neighbours")
-        self.x_ref = x.copy()
-        self.y_ref = y.copy()
+        if self.x_ref is None:
+            self.x_ref = x.copy()
+            self.y_ref = y.copy()
+        else:
+            self.x_ref[:] = x
+            self.y_ref[:] = y
         self.searches += 1
 
 
@@ -89,10 +93,12 @@ class Operators:
         """
         t = self.table
         t.update(x, y, time_ms)
-        if active is None or t.searches != self._table_search:
-            active = self.all_nodes
+        if t.searches != self._table_search:
+            active = None
             np.cumsum(t.count, out=self.start[1:])
             self._table_search = t.searches
+        if active is None:
+            active = self.all_nodes
         status = compute_weights(x, y, self.h, self.area, self.kappa, t.nbr, t.mirrored, t.count,
                                  COND_MAX, active, self.start, self.nbr, self.mirrored, self.count,
                                  self.weights, self.lap_b, self.cond)

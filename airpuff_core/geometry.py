@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from .kernels.fluid import AXIS, CORNEA, INTERIOR, WALL
+from .kernels.membrane import cornea_polygon_volume
 
 # target fluid node counts (SPEC section 2) and the polar lattices (n_rho, n_phi)
 TARGET_NODES = {"coarse": 300, "paper": 1134, "fine": 4500}
@@ -260,14 +261,6 @@ def chamber_volume(geometry, xc, yc, r_post, alpha0) -> float:
     ``cap``: polygon (0, y_limbus)-apex-cornea-limbus.
     """
     if geometry == "sector":
-        px = np.concatenate(([0.0], xc, [0.0]))
-        py = np.concatenate(([0.0], yc, [0.0]))
         inner = 2.0 * math.pi / 3.0 * r_post ** 3 * (1.0 - math.cos(alpha0))
-    else:
-        px = np.concatenate(([0.0], xc, [0.0]))
-        py = np.concatenate(([yc[-1]], yc, [yc[-1]]))
-        inner = 0.0
-    xa, xb = px[:-1], px[1:]
-    ya, yb = py[:-1], py[1:]
-    v = math.pi / 3.0 * np.sum((xa * xa + xa * xb + xb * xb) * (ya - yb))
-    return abs(v) - inner
+        return cornea_polygon_volume(xc, yc, 0.0) - inner
+    return cornea_polygon_volume(xc, yc, yc[-1])

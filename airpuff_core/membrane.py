@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels.membrane import add_pressure_loads, fung_resultants, internal_forces
+from .kernels.membrane import (add_pressure_loads, even_fit_curvature, fung_resultants,
+                               internal_forces)
 
 
 def equibiaxial_tension(lam, Ebar, nu, k):
@@ -193,11 +194,4 @@ def apex_curvature(X, Y, n_fit):
     apex as the resolution grows.  With two nodes it is 2 (y0 - y1) / x1^2, the curvature the
     discrete apex balance 2 N kappa = q actually sees.
     """
-    x = X[:n_fit]
-    y = Y[:n_fit]
-    if n_fit >= 4:
-        G = np.stack([np.ones(n_fit), x * x, x ** 4], axis=1)
-    else:
-        G = np.stack([np.ones(n_fit), x * x], axis=1)
-    coef = np.linalg.lstsq(G, y, rcond=None)[0]
-    return -2.0 * coef[1]
+    return even_fit_curvature(X, Y, n_fit)

@@ -103,7 +103,7 @@ PARAMETERS: dict[str, ParamSpec] = {
            "strength gamma of the stabilising hyperviscosity gamma c h^5 L^3 (0 switches it off)",
            low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
-        _p("cfl", "1", 0.4, 0.0, 0.6,
+        _p("cfl", "1", 0.6, 0.0, 0.6,
            "acoustic CFL number: dt = cfl * h_min / (c + v_max) (stable to 0.72 at rest)"),
     ]
 }

@@ -29,7 +29,9 @@ from .errors import SimulationError
 from .fluid import NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
 from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity, divergence_at,
-                            max_speed, tait_pressure, velocity_derivatives)
+                            drift, impose_cornea, interface_pressure_change,
+                            max_density_deviation, max_speed, tait_pressure,
+                            velocity_derivatives)
 from .kernels.mfpm import derivatives, hyperviscous_flow_increments
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
 from .membrane import (apex_curvature, apex_fit_nodes, build_membrane, jet_pressure,
@@ -128,6 +130,8 @@ class CoupledModel:
         self._dvy_new = np.zeros((n, 5))
         N = X.shape[0]
         self._mF = {k: np.empty(N) for k in ("Fx", "Fy", "q")}
+        self._membrane_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
+        self._p_trial = (np.empty(N), np.empty(N))  # interface pressure estimates [Pa]
         self.last_iterations = 0
         self.last_residual = 0.0
         self.last_substeps = 0
@@ -207,10 +211,7 @@ class CoupledModel:
             w["hv_vx"][:] = 0.0
             w["hv_vy"][:] = 0.0
         advance_density(self.rho, self.rho, self.div, 0.5 * dt, w["hv_rho"], dt, w["rho_half"])
-        np.multiply(self.vx, 0.5 * dt, out=w["x_half"])
-        w["x_half"] += self.x
-        np.multiply(self.vy, 0.5 * dt, out=w["y_half"])
-        w["y_half"] += self.y
+        drift(self.x, self.y, self.vx, self.vy, 0.5 * dt, w["x_half"], w["y_half"])
         ops_half.build(w["x_half"], w["y_half"], t_ms)
         tait_pressure(w["rho_half"], rho0, p0, c, gam, w["p_half"])
         derivatives(w["p_half"], 1.0, *ops_half.args(), self._grad_p)
@@ -219,26 +220,24 @@ class CoupledModel:
         advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p, self.dvx, self.dvy,
                          w["rho_half"], self.rho, si["mu"], dt, w["hv_vx"], w["hv_vy"],
                          w["vx_new"], w["vy_new"])
-        np.multiply(w["vx_new"], 0.5 * dt, out=w["x_new"])
-        w["x_new"] += w["x_half"]
-        np.multiply(w["vy_new"], 0.5 * dt, out=w["y_new"])
-        w["y_new"] += w["y_half"]
+        drift(w["x_half"], w["y_half"], w["vx_new"], w["vy_new"], 0.5 * dt, w["x_new"], w["y_new"])
 
         # 2. Dirichlet-Neumann iterations
-        p_est = p_interface_n.copy()
-        norm = math.sqrt(p_est.shape[0])
+        p_est, p_new = self._p_trial
+        p_est[:] = p_interface_n
         cornea = self.cornea
         mF = self._mF
+        X, Y, VX, VY = self._membrane_trial
         max_it = self.params.max_coupling_iterations
         for it in range(1, max_it + 1):
-            X, Y, VX, VY = self.X.copy(), self.Y.copy(), self.VX.copy(), self.VY.copy()
+            X[:] = self.X
+            Y[:] = self.Y
+            VX[:] = self.VX
+            VY[:] = self.VY
             advance_membrane(X, Y, VX, VY, mem.mass, mem.phi, mem.L0, mem.S0, mem.A0, mem.Ebar,
                              mem.nu, mem.k, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
                              mF["Fx"], mF["Fy"], mF["q"])
-            w["x_new"][cornea] = X
-            w["y_new"][cornea] = Y
-            w["vx_new"][cornea] = VX
-            w["vy_new"][cornea] = VY
+            impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
             if it == 1:
                 ops_new.build(w["x_new"], w["y_new"], t_ms)
                 near_cornea = ops_new.nodes_near(self.is_cornea)
@@ -249,15 +248,12 @@ class CoupledModel:
                           w["div_new"])
             advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
                             w["rho_new"])
-            p_new = np.empty(cornea.shape[0])
-            tait_pressure(w["rho_new"][cornea], rho0, p0, c, gam, p_new)
-            change = np.linalg.norm(p_new - p_est) / norm
-            scale_p = max(np.linalg.norm(p_est - p0) / norm, P_REF)
-            residual = change / scale_p
+            residual = interface_pressure_change(cornea, w["rho_new"], rho0, p0, c, gam, P_REF,
+                                                 p_est, p_new)
             if not math.isfinite(residual):
                 raise SimulationError(f"fluid-structure system blew up at t = {t_ms:.4f} ms: the "
                                       f"interface pressure is not finite", t_ms, "blow-up")
-            p_est = p_new
+            p_est, p_new = p_new, p_est
             if it >= 2 and residual < si["tol"]:
                 break
         else:
@@ -273,6 +269,7 @@ class CoupledModel:
                         w["rho_new"])
 
         # commit the step
+        self._membrane_trial = (self.X, self.Y, self.VX, self.VY)
         self.X, self.Y, self.VX, self.VY = X, Y, VX, VY
         self.x, w["x_new"] = w["x_new"], self.x
         self.y, w["y_new"] = w["y_new"], self.y
@@ -292,7 +289,7 @@ class CoupledModel:
         if not math.isfinite(vmax) or vmax > BLOWUP_SPEED:
             raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: max speed "
                                   f"{vmax:.3g} m/s", self.t * 1e3, "blow-up")
-        dev = np.max(np.abs(self.rho / rho0 - 1.0))
+        dev = max_density_deviation(self.rho, rho0)
         if not math.isfinite(dev) or dev > BLOWUP_DENSITY:
             raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: density deviates "
                                   f"by {dev:.3g} from the reference", self.t * 1e3, "blow-up")

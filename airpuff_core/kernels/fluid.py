@@ -101,3 +101,53 @@ def max_speed(vx, vy):
         if s > m:
             m = s
     return np.sqrt(m)
+
+
+@njit(cache=True)
+def drift(x, y, vx, vy, tau, x_out, y_out):
+    """x_out = x + tau vx, y_out = y + tau vy  [m] (a position update over tau [s])."""
+    for i in range(x.shape[0]):
+        x_out[i] = x[i] + tau * vx[i]
+        y_out[i] = y[i] + tau * vy[i]
+
+
+@njit(cache=True)
+def impose_cornea(cornea, X, Y, VX, VY, x, y, vx, vy):
+    """Dirichlet condition of the coupling: the fluid's interface nodes take the membrane's
+    positions [m] and velocities [m/s]."""
+    for k in range(cornea.shape[0]):
+        i = cornea[k]
+        x[i] = X[k]
+        y[i] = Y[k]
+        vx[i] = VX[k]
+        vy[i] = VY[k]
+
+
+@njit(cache=True)
+def interface_pressure_change(cornea, rho, rho0, p0, c, gamma, p_ref, p_est, p_new):
+    """Neumann side of the coupling: p_new = eq. (5) at the interface nodes [Pa], and the
+    normalised change ||p_new - p_est|| / max(||p_est - p0||, p_ref) (RMS norms) that decides
+    convergence."""
+    b = rho0 * c * c / gamma
+    change = 0.0
+    size = 0.0
+    for k in range(cornea.shape[0]):
+        p = p0 + b * ((rho[cornea[k]] / rho0) ** gamma - 1.0)
+        p_new[k] = p
+        change += (p - p_est[k]) ** 2
+        size += (p_est[k] - p0) ** 2
+    n = cornea.shape[0]
+    return np.sqrt(change / n) / max(np.sqrt(size / n), p_ref)
+
+
+@njit(cache=True)
+def max_density_deviation(rho, rho0):
+    """max_i |rho_i / rho0 - 1| (NaN if a density is not finite)."""
+    m = 0.0
+    for i in range(rho.shape[0]):
+        d = abs(rho[i] / rho0 - 1.0)
+        if not d <= m:
+            if np.isnan(d):
+                return np.nan
+            m = d
+    return m

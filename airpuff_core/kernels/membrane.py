@@ -141,3 +141,65 @@ def max_wave_speed(X, Y, L0, S0, Ebar, nu, k, rho_h):
         c2 = (abs(N2) + lam2 * lam2 * dN2) / rho_h
         cmax2 = max(cmax2, c1, c2)
     return np.sqrt(cmax2)
+
+
+@njit(cache=True)
+def even_fit_curvature(X, Y, n_fit):
+    """Curvature kappa = -2 c2 [1/m] of the least-squares fit y = c0 + c2 x^2 (+ c4 x^4 when
+    n_fit >= 4) through the first ``n_fit`` nodes.
+
+    The normal equations are formed in xi = x / x_max, where the basis 1, xi^2, xi^4 is well
+    conditioned on [0, 1], and solved by Gaussian elimination with partial pivoting.
+    """
+    m = 3 if n_fit >= 4 else 2
+    x_max = 0.0
+    for k in range(n_fit):
+        x_max = max(x_max, abs(X[k]))
+    G = np.zeros((m, m + 1))  # augmented normal equations [G^T G | G^T y]
+    basis = np.empty(m)
+    for k in range(n_fit):
+        xi2 = (X[k] / x_max) ** 2
+        basis[0] = 1.0
+        basis[1] = xi2
+        if m == 3:
+            basis[2] = xi2 * xi2
+        for a in range(m):
+            for b in range(m):
+                G[a, b] += basis[a] * basis[b]
+            G[a, m] += basis[a] * Y[k]
+    for col in range(m):
+        piv = col
+        for r in range(col + 1, m):
+            if abs(G[r, col]) > abs(G[piv, col]):
+                piv = r
+        for c in range(m + 1):
+            G[col, c], G[piv, c] = G[piv, c], G[col, c]
+        for r in range(col + 1, m):
+            f = G[r, col] / G[col, col]
+            for c in range(col, m + 1):
+                G[r, c] -= f * G[col, c]
+    coef = np.empty(m)
+    for r in range(m - 1, -1, -1):
+        s = G[r, m]
+        for c in range(r + 1, m):
+            s -= G[r, c] * coef[c]
+        coef[r] = s / G[r, r]
+    return -2.0 * coef[1] / (x_max * x_max)
+
+
+@njit(cache=True)
+def cornea_polygon_volume(xc, yc, y_axis):
+    """Volume [m^3] swept about the axis by the meridian polygon (0, y_axis) - cornea polyline
+    (xc, yc) - (0, y_axis): the sum of cone frusta (Pappus),
+    |pi/3 sum (x_a^2 + x_a x_b + x_b^2)(y_a - y_b)| over its edges."""
+    n = xc.shape[0]
+    v = 0.0
+    xa = 0.0
+    ya = y_axis
+    for k in range(n + 1):
+        xb = xc[k] if k < n else 0.0
+        yb = yc[k] if k < n else y_axis
+        v += (xa * xa + xa * xb + xb * xb) * (ya - yb)
+        xa = xb
+        ya = yb
+    return abs(np.pi / 3.0 * v)

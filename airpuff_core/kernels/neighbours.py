@@ -94,3 +94,16 @@ def build_neighbours(x, y, h, kappa, nbr, mirrored, count):
                             k += 1
         count[i] = k
     return status
+
+
+@njit(cache=True)
+def max_squared_move(x, y, x_ref, y_ref):
+    """max_i |x_i - x_ref_i|^2 [m^2]; NaN if a position is not finite."""
+    m = 0.0
+    for i in range(x.shape[0]):
+        d2 = (x[i] - x_ref[i]) ** 2 + (y[i] - y_ref[i]) ** 2
+        if not d2 <= m:  # also catches NaN, which must trigger a search (and its error)
+            if np.isnan(d2):
+                return np.nan
+            m = d2
+    return m
