@@ -61,10 +61,16 @@ def sound_speed(rule, c0, c_slope, v_prev, v_running):
 
 
 class CoupledModel:
-    """State and operators of one run; ``step()`` advances by one coupled time step."""
+    """State and operators of one run; ``step()`` advances by one coupled time step.
 
-    def __init__(self, params: RunParams):
+    ``reuse=False`` rebuilds every operator and every derivative in full in each coupling
+    iteration, instead of only what the moving cornea changes: the same answers, slower (a check
+    of the reuse).
+    """
+
+    def __init__(self, params: RunParams, reuse: bool = True):
         self.params = params
+        self.reuse = reuse
         si = self.si = params.si()
         ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
                                           si["R"], si["r_post"], si["alpha0"])
@@ -238,14 +244,19 @@ class CoupledModel:
                              mem.nu, mem.k, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
                              mF["Fx"], mF["Fy"], mF["q"])
             impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
-            if it == 1:
+            if it == 1 or not self.reuse:
                 ops_new.build(w["x_new"], w["y_new"], t_ms)
                 near_cornea = ops_new.nodes_near(self.is_cornea)
             else:
+                # only the cornea moved since iteration 1: rebuild the nodes that see it
                 ops_new.build(w["x_new"], w["y_new"], t_ms, active=near_cornea)
-            # only the cornea's density enters the coupling: the full field follows convergence
-            divergence_at(cornea, w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
-                          w["div_new"])
+            if self.reuse:
+                # only the cornea's density enters the coupling: the full field follows
+                divergence_at(cornea, w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
+                              w["div_new"])
+            else:
+                velocity_derivatives(w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
+                                     self._dvx_new, self._dvy_new, w["div_new"])
             advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
                             w["rho_new"])
             residual = interface_pressure_change(cornea, w["rho_new"], rho0, p0, c, gam, P_REF,
@@ -330,14 +341,15 @@ class CoupledModel:
         }
 
 
-def simulate(params: RunParams, progress=None) -> RunResult:
+def simulate(params: RunParams, progress=None, reuse: bool = True) -> RunResult:
     """Run one coupled simulation and return its histories, snapshots and metrics.
 
-    ``progress(t_ms, t_end_ms)`` is called now and then.  Raises SimulationError on blow-up,
-    non-convergent coupling or an ill-conditioned operator (the message names the time).
+    ``progress(t_ms, t_end_ms)`` is called now and then.  ``reuse``: see ``CoupledModel``.
+    Raises SimulationError on blow-up, non-convergent coupling or an ill-conditioned operator
+    (the message names the time).
     """
     wall0 = _time.monotonic()
-    model = CoupledModel(params)
+    model = CoupledModel(params, reuse)
     si = model.si
     t_end = si["t_end"]
     dt_out = si["output_interval"]
