@@ -13,7 +13,7 @@ the membrane).  Only INTERIOR and AXIS nodes integrate the momentum equation.
 import numpy as np
 from numba import njit
 
-from .mfpm import derivatives
+from .mfpm import derivatives_pair
 from .neighbours import AXIS_EPS
 
 INTERIOR = 0
@@ -25,8 +25,7 @@ CORNEA = 3
 @njit(cache=True)
 def velocity_derivatives(x, vx, vy, start, nbr, mirrored, count, weights, dvx, dvy, div):
     """Derivative vectors of vx (odd in x) and vy (even), and the axisymmetric divergence."""
-    derivatives(vx, -1.0, start, nbr, mirrored, count, weights, dvx)
-    derivatives(vy, 1.0, start, nbr, mirrored, count, weights, dvy)
+    derivatives_pair(vx, -1.0, vy, 1.0, start, nbr, mirrored, count, weights, dvx, dvy)
     for i in range(x.shape[0]):
         if x[i] < AXIS_EPS:
             div[i] = 2.0 * dvx[i, 0] + dvy[i, 1]
