@@ -30,7 +30,7 @@ from .fluid import NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
 from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity, divergence_at,
                             drift, impose_cornea, interface_pressure_change,
-                            max_density_deviation, max_speed, tait_pressure,
+                            max_density_deviation, max_speed, tait_pressure, tait_pressure_at,
                             velocity_derivatives)
 from .kernels.mfpm import derivatives, hyperviscous_flow_increments
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
@@ -119,10 +119,10 @@ class CoupledModel:
         self.div = np.zeros(n)
         velocity_derivatives(self.x, self.vx, self.vy, *self.ops_n.args(), self.dvx, self.dvy,
                              self.div)
-        self.p = np.empty(n)
         self.c = sound_speed(params.c_rule, si["c0"], si["c_slope"], 0.0, 0.0)
-        tait_pressure(self.rho, si["rho_f"], si["p0"], self.c, si["gamma"], self.p)
-        self.p_interface = self.p[self.cornea].copy()
+        self.p_interface = np.empty(self.cornea.shape[0])  # fluid pressure on the cornea [Pa]
+        tait_pressure_at(self.cornea, self.rho, si["rho_f"], si["p0"], self.c, si["gamma"],
+                         self.p_interface)
         # work arrays (allocated once)
         self._w = {k: np.empty(n) for k in ("w1", "w2", "hv_rho", "hv_vx", "hv_vy", "rho_half",
                                             "p_half", "vx_new", "vy_new", "x_new", "y_new",
@@ -138,6 +138,9 @@ class CoupledModel:
         self._mF = {k: np.empty(N) for k in ("Fx", "Fy", "q")}
         self._membrane_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_trial = (np.empty(N), np.empty(N))  # interface pressure estimates [Pa]
+        self._near_cornea = None  # nodes with a cornea node in their neighbour table
+        self._near_cornea_search = -1  # the table search it was made for
+        self._p_interface_n = np.empty(N)  # interface pressure at t^n with this step's c [Pa]
         self.last_iterations = 0
         self.last_residual = 0.0
         self.last_substeps = 0
@@ -194,8 +197,8 @@ class CoupledModel:
         ops_n, ops_half, ops_new = self.ops_n, self.ops_half, self.ops_new
 
         # pressure at t^n with this step's c (the EOS changes with c at fixed density)
-        tait_pressure(self.rho, rho0, p0, c, gam, self.p)
-        p_interface_n = self.p[self.cornea].copy()
+        p_interface_n = self._p_interface_n
+        tait_pressure_at(self.cornea, self.rho, rho0, p0, c, gam, p_interface_n)
 
         # 1. fluid predictor
         gamma = si["hyperviscosity"]
@@ -246,7 +249,11 @@ class CoupledModel:
             impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
             if it == 1 or not self.reuse:
                 ops_new.build(w["x_new"], w["y_new"], t_ms)
-                near_cornea = ops_new.nodes_near(self.is_cornea)
+                if self._near_cornea_search != self.neighbours.searches:
+                    # the nodes that see the cornea change only with the neighbour table
+                    self._near_cornea = ops_new.nodes_near(self.is_cornea)
+                    self._near_cornea_search = self.neighbours.searches
+                near_cornea = self._near_cornea
             else:
                 # only the cornea moved since iteration 1: rebuild the nodes that see it
                 ops_new.build(w["x_new"], w["y_new"], t_ms, active=near_cornea)
@@ -295,8 +302,8 @@ class CoupledModel:
         vmax = max_speed(self.vx, self.vy)
         self.v_prev = vmax
         self.v_running = max(self.v_running, vmax)
-        tait_pressure(self.rho, rho0, p0, c, gam, self.p)
-        self.p_interface = self.p[cornea].copy()
+        self.p_interface = np.empty(cornea.shape[0])
+        tait_pressure_at(cornea, self.rho, rho0, p0, c, gam, self.p_interface)
         if not math.isfinite(vmax) or vmax > BLOWUP_SPEED:
             raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: max speed "
                                   f"{vmax:.3g} m/s", self.t * 1e3, "blow-up")
@@ -332,11 +339,18 @@ class CoupledModel:
             "sound_speed": self.c,
         }
 
+    def pressure(self):
+        """The fluid pressure field [Pa] at the current state, eq. (5) with the current c."""
+        si = self.si
+        p = np.empty(self.rho.shape[0])
+        tait_pressure(self.rho, si["rho_f"], si["p0"], self.c, si["gamma"], p)
+        return p
+
     def snapshot(self):
         return {
             "cornea_x": self.X * 1e3, "cornea_y": self.Y * 1e3,
             "fluid_x": self.x * 1e3, "fluid_y": self.y * 1e3,
-            "fluid_pressure": self.p / MMHG_PA,
+            "fluid_pressure": self.pressure() / MMHG_PA,
             "fluid_vx": self.vx.copy(), "fluid_vy": self.vy.copy(),
         }
 

@@ -54,11 +54,25 @@ def divergence_at(nodes, x, vx, vy, start, nbr, mirrored, count, weights, div):
 
 
 @njit(cache=True)
+def _tait(rho, rho0, p0, b, gamma):
+    """Equation of state (5) with b = rho0 c^2 / gamma: p = p0 + b [(rho/rho0)^gamma - 1]  [Pa]."""
+    return p0 + b * ((rho / rho0) ** gamma - 1.0)
+
+
+@njit(cache=True)
 def tait_pressure(rho, rho0, p0, c, gamma, out):
     """Equation of state (5): p = p0 + rho0 c^2/gamma [(rho/rho0)^gamma - 1]  [Pa]."""
     b = rho0 * c * c / gamma
     for i in range(rho.shape[0]):
-        out[i] = p0 + b * ((rho[i] / rho0) ** gamma - 1.0)
+        out[i] = _tait(rho[i], rho0, p0, b, gamma)
+
+
+@njit(cache=True)
+def tait_pressure_at(nodes, rho, rho0, p0, c, gamma, out):
+    """Equation of state (5) at the listed nodes only: out[k] = p(rho[nodes[k]])  [Pa]."""
+    b = rho0 * c * c / gamma
+    for k in range(nodes.shape[0]):
+        out[k] = _tait(rho[nodes[k]], rho0, p0, b, gamma)
 
 
 @njit(cache=True)
@@ -131,7 +145,7 @@ def interface_pressure_change(cornea, rho, rho0, p0, c, gamma, p_ref, p_est, p_n
     change = 0.0
     size = 0.0
     for k in range(cornea.shape[0]):
-        p = p0 + b * ((rho[cornea[k]] / rho0) ** gamma - 1.0)
+        p = _tait(rho[cornea[k]], rho0, p0, b, gamma)
         p_new[k] = p
         change += (p - p_est[k]) ** 2
         size += (p_est[k] - p0) ** 2
