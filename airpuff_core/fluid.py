@@ -67,7 +67,9 @@ class NeighbourTable:
 class Operators:
     """MFPM weights and Brookshaw coefficients for one configuration, on a shared neighbour table."""
 
-    def __init__(self, h, area, kappa, table: NeighbourTable | None = None):
+    def __init__(self, h, area, kappa, table: NeighbourTable | None = None, rows: int = 5):
+        """``rows``: 5 for every derivative (f_x, f_y, f_xx, f_xy, f_yy), 2 for an operator that
+        serves gradients only (``kernels.mfpm.gradient``): it skips the other three rows."""
         n = h.shape[0]
         self.h = h
         self.area = area
@@ -80,7 +82,7 @@ class Operators:
         self.count = np.zeros(n, np.int64)
         self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.uint32)
         self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
-        self.weights = np.zeros((5, n * MAX_NEIGHBOURS))  # one row per derivative
+        self.weights = np.zeros((rows, n * MAX_NEIGHBOURS))  # one row per derivative
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
         self.cond = np.zeros(n)
         self.all_nodes = np.arange(n)

@@ -32,7 +32,7 @@ from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocit
                             drift, impose_cornea, interface_pressure_change,
                             max_density_deviation, max_speed, tait_pressure, tait_pressure_at,
                             velocity_derivatives)
-from .kernels.mfpm import derivatives, hyperviscous_flow_increments
+from .kernels.mfpm import gradient, hyperviscous_flow_increments
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
 from .membrane import (apex_curvature, apex_fit_nodes, build_membrane, jet_pressure,
                        static_equilibrium)
@@ -108,7 +108,7 @@ class CoupledModel:
         self.hv_scale_unit = ch.h ** 5  # HV scale per unit gamma c
         self.neighbours = NeighbourTable(ch.h, KAPPA)
         self.ops_n = Operators(ch.h, ch.area, KAPPA, self.neighbours).build(self.x, self.y)
-        self.ops_half = Operators(ch.h, ch.area, KAPPA, self.neighbours)
+        self.ops_half = Operators(ch.h, ch.area, KAPPA, self.neighbours, rows=2)  # grad p only
         self.ops_new = Operators(ch.h, ch.area, KAPPA, self.neighbours)
         self.hv_radius_unit, self.hv_mode = self.ops_n.hyperviscous_spectral_radius(
             self.hv_scale_unit)
@@ -127,7 +127,7 @@ class CoupledModel:
         self._w = {k: np.empty(n) for k in ("w1", "w2", "hv_rho", "hv_vx", "hv_vy", "rho_half",
                                             "p_half", "vx_new", "vy_new", "x_new", "y_new",
                                             "rho_new", "div_new", "x_half", "y_half")}
-        self._grad_p = np.zeros((n, 5))
+        self._grad_p = np.zeros((n, 2))
         self._hv_work = np.empty((9, n))
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
@@ -223,7 +223,7 @@ class CoupledModel:
         drift(self.x, self.y, self.vx, self.vy, 0.5 * dt, w["x_half"], w["y_half"])
         ops_half.build(w["x_half"], w["y_half"], t_ms)
         tait_pressure(w["rho_half"], rho0, p0, c, gam, w["p_half"])
-        derivatives(w["p_half"], 1.0, *ops_half.args(), self._grad_p)
+        gradient(w["p_half"], 1.0, *ops_half.args(), self._grad_p)
         w["vx_new"][:] = 0.0
         w["vy_new"][:] = 0.0
         advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p, self.dvx, self.dvy,

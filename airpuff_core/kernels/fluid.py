@@ -89,7 +89,8 @@ def advance_velocity(kind, x, vx, vy, grad_p, dvx, dvy, rho_half, rho_n, mu, dt,
 
         v^{n+1} = v^n - dt/rho^{n+1/2} grad p^{n+1/2} + dt mu/rho^n (viscous term)^n + dt HV(v^n)
 
-    ``grad_p`` holds derivative vectors at n+1/2, ``dvx``/``dvy`` at n.  WALL and CORNEA nodes
+    ``grad_p`` holds the pressure gradient (p_x, p_y) at n+1/2, ``dvx``/``dvy`` the derivative
+    vectors of the velocity at n.  WALL and CORNEA nodes
     are left untouched (their velocity is imposed).
     """
     for i in range(x.shape[0]):

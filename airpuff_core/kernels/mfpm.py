@@ -127,6 +127,7 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
     pairs inside the support (r < kappa max(h_i, h_j)) are kept, in the table's order, as node i's
     pairs p = start[i] ... start[i] + count[i] - 1 of the flat arrays ``nbr[p]``, ``mirrored[p]``,
     ``weights[beta, p]`` and ``lap_b[p]`` (start[i + 1] - start[i] >= the table's count for i).
+    ``weights`` has 5 rows (beta = 0..4), or 2 when only gradients are wanted.
     Contiguous pair data keep the derivative loops in cache.  A pair outside the support has W = 0
     and contributes exactly nothing, so dropping it changes no result.
 
@@ -138,6 +139,7 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
     first node whose matrix is singular or worse than ``cond_max``.
     """
     maxn = table_nbr.shape[1]
+    n_rows = weights.shape[0]  # 5, or 2 for an operator that serves gradients only
     rk = np.empty(maxn)
     uk = np.empty(maxn)
     vk = np.empty(maxn)
@@ -232,7 +234,8 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
         c20 = s2 * i20; c21 = s2 * i21; c22 = s2 * i22; c23 = s2 * i32; c24 = s2 * i42
         c30 = s2 * i30; c31 = s2 * i31; c32 = s2 * i32; c33 = s2 * i33; c34 = s2 * i43
         c40 = s2 * i40; c41 = s2 * i41; c42 = s2 * i42; c43 = s2 * i43; c44 = s2 * i44
-        # 3. pair weights A^-1 P_j W_j, one row per derivative
+        # 3. pair weights A^-1 P_j W_j, one row per derivative (the first two rows only for a
+        # gradient-only operator)
         for k in range(m):
             w = wk[k]
             u = uk[k]
@@ -244,9 +247,10 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
             p4 = 0.5 * v * v * w
             weights[0, base + k] = c00 * p0 + c01 * p1 + c02 * p2 + c03 * p3 + c04 * p4
             weights[1, base + k] = c10 * p0 + c11 * p1 + c12 * p2 + c13 * p3 + c14 * p4
-            weights[2, base + k] = c20 * p0 + c21 * p1 + c22 * p2 + c23 * p3 + c24 * p4
-            weights[3, base + k] = c30 * p0 + c31 * p1 + c32 * p2 + c33 * p3 + c34 * p4
-            weights[4, base + k] = c40 * p0 + c41 * p1 + c42 * p2 + c43 * p3 + c44 * p4
+            if n_rows == 5:
+                weights[2, base + k] = c20 * p0 + c21 * p1 + c22 * p2 + c23 * p3 + c24 * p4
+                weights[3, base + k] = c30 * p0 + c31 * p1 + c32 * p2 + c33 * p3 + c34 * p4
+                weights[4, base + k] = c40 * p0 + c41 * p1 + c42 * p2 + c43 * p3 + c44 * p4
     return status
 
 
@@ -278,6 +282,24 @@ def derivatives(f, parity, start, nbr, mirrored, count, weights, out):
         out[i, 2] = d2
         out[i, 3] = d3
         out[i, 4] = d4
+
+
+@njit(cache=True)
+def gradient(f, parity, start, nbr, mirrored, count, weights, out):
+    """out[i, :] = (f_x, f_y) at every node: the first two components of ``derivatives`` (the
+    operator may hold only the first two rows of weights)."""
+    for i in range(f.shape[0]):
+        d0 = 0.0
+        d1 = 0.0
+        fi = f[i]
+        for k in range(start[i], start[i] + count[i]):
+            j = nbr[k]
+            fj = parity * f[j] if mirrored[k] else f[j]
+            df = fj - fi
+            d0 += weights[0, k] * df
+            d1 += weights[1, k] * df
+        out[i, 0] = d0
+        out[i, 1] = d1
 
 
 @njit(cache=True)
