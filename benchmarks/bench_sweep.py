@@ -1,31 +1,147 @@
-"""Sweep throughput on a LocalCluster with 1 and with 2 worker processes, on the same grid
-(4 coarse points of 10 ms; each measurement in a fresh output folder, Numba cache warm)."""
+"""Sweep throughput on a LocalCluster of 1 and of 2 worker processes, in the steady state.
 
+Throughput [points/min] = points / (time from the cluster being ready to the last point done).
+"Ready" means: the client is connected, the workers are checked (one task thread each, Numba,
+OpenMP and BLAS pools limited to one thread) and warm -- each has run one tiny point
+(``sweep.cluster.warm_workers``: imports, Numba's set-up, kernels loaded from the cache), through
+``run_sweep``'s ``on_cluster_ready`` hook.  The start-up before that (the Numba warm-up in this
+process, starting the cluster, warming the workers) and the end after the last point (combining
+``sweep.nc``, closing the cluster) are printed separately: they are paid once per sweep, not per
+point, and would hide the scaling of a short sweep.
+
+Same grid for 1 and 2 workers: 8 coarse points of 35 ms, the default run (E0 x IOP = 4 x 2, so that each of two
+workers gets several; ``--points 16``: 4 x 4), each measurement in a fresh output folder.  Points
+differ in cost, so at the end of a sweep one worker may idle while the other finishes its last
+point; that end effect is part of the figure, and weighs less in a longer sweep.
+
+Per worker, the solver time of its points (``wall_s`` of the records) is summed: busy / steady
+close to 1 means the worker never waited for work (the rest, about 0.1 s a point, is writing the
+point's netCDF file and Dask's bookkeeping); a mean point time that grows with the number of
+workers means the workers slow each other down (shared cores, caches or memory bandwidth, or
+other load on the machine).
+
+    python benchmarks/bench_sweep.py                # 1 worker, then 2
+    python benchmarks/bench_sweep.py --workers 2    # one configuration only
+    python benchmarks/bench_sweep.py --repeat 3     # 1, 2, 1, 2, 1, 2 workers; medians compared
+    python benchmarks/bench_sweep.py --points 16    # 16 points instead of 8
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
 import tempfile
 import time
+from pathlib import Path
 
-from sweep.grid import SweepSpec
-from sweep.runner import run_sweep
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from airpuff_core.params import RunParams  # noqa: E402
+from sweep.cluster import warm_workers  # noqa: E402
+from sweep.grid import SweepSpec  # noqa: E402
+from sweep.runner import run_sweep  # noqa: E402
 
 
-def grid():
-    return SweepSpec(E0=[0.4, 0.6], IOP=[12.0, 20.0], thickness=[0.5], pmax=[10.0],
-                     options={"resolution": "coarse", "t_end": 10.0})
+def grid(t_end: float = 35.0, points: int = 8) -> SweepSpec:
+    """``points`` (8 or 16) coarse points of ``t_end`` [ms]: 4 values of E0 times 2 or 4 of IOP
+    (about 3-4 s of solver time each at 35 ms)."""
+    iop = {8: [12.0, 20.0], 16: [12.0, 16.0, 20.0, 24.0]}[points]
+    return SweepSpec(E0=[0.4, 0.5, 0.6, 0.7], IOP=iop, thickness=[0.5], pmax=[10.0],
+                     options={"resolution": "coarse", "t_end": t_end})
 
 
-def main():
-    rates = {}
-    for workers in (1, 2):
-        with tempfile.TemporaryDirectory() as out:
-            t0 = time.perf_counter()
-            outcome = run_sweep(grid(), out, workers=workers)
-            wall = time.perf_counter() - t0
-        rates[workers] = outcome.computed / wall
-        print(f"sweep, {workers} worker(s): {outcome.computed} points in {wall:.1f} s "
-              f"({rates[workers] * 60:.1f} points/min, cluster start-up included)")
-    print(f"sweep speed-up 2 workers / 1 worker: {rates[2] / rates[1]:.2f}")
-    return rates
+def measure(workers: int, spec: SweepSpec) -> dict:
+    """One sweep of ``spec`` on a new LocalCluster of ``workers`` processes; times [s]."""
+    marks: dict = {"done": []}
+
+    def on_ready(client):
+        client.wait_for_workers(workers, timeout=120)
+        marks["warm"] = warm_workers(client, RunParams.from_dict(spec.options))
+        marks["ready"] = time.perf_counter()
+
+    def on_progress(record, counts):
+        if record is not None:
+            marks["done"].append(time.perf_counter())
+
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.perf_counter()
+        outcome = run_sweep(spec, out, workers=workers, on_cluster_ready=on_ready,
+                            progress=on_progress)
+        t_end = time.perf_counter()
+    steady = marks["done"][-1] - marks["ready"]
+    per_worker: dict = {}
+    for rec in outcome.records:
+        w = per_worker.setdefault(rec["pid"], {"points": 0, "busy": 0.0})
+        w["points"] += 1
+        w["busy"] += rec["wall_s"] or 0.0
+    return {"workers": workers, "points": outcome.computed, "failed": outcome.failed,
+            "startup": marks["ready"] - t0, "client_warmup": outcome.warmup_s,
+            "worker_warmup": marks["warm"], "steady": steady,
+            "finish": t_end - marks["done"][-1], "wall": t_end - t0,
+            "rate": outcome.computed / steady * 60.0, "per_worker": per_worker,
+            "mean_point": sum(w["busy"] for w in per_worker.values()) / max(1, outcome.computed),
+            "point_range": (min(r["wall_s"] or 0.0 for r in outcome.records),
+                            max(r["wall_s"] or 0.0 for r in outcome.records)),
+            "warnings": outcome.warnings}
+
+
+def report(m: dict) -> None:
+    warm = m["worker_warmup"]
+    warm_s = ", ".join(f"{r.get('seconds', float('nan')):.2f} s"
+                       + ("" if r.get("status") == "ok" else f" ({r.get('message')})")
+                       + (f" [{r['jit_compiled']} kernels COMPILED]" if r.get("jit_compiled")
+                          else "")
+                       for r in warm.values())
+    print(f"sweep, {m['workers']} worker(s): {m['points']} points in {m['steady']:.1f} s "
+          f"steady state = {m['rate']:.1f} points/min "
+          f"(solver time per point {m['mean_point']:.2f} s, "
+          f"{m['point_range'][0]:.2f}-{m['point_range'][1]:.2f} s)")
+    print(f"  start-up {m['startup']:.1f} s (Numba warm-up here {m['client_warmup']:.1f} s, "
+          f"workers warmed in {warm_s}); after the last point {m['finish']:.1f} s; "
+          f"wall {m['wall']:.1f} s")
+    for pid, w in sorted(m["per_worker"].items()):
+        print(f"  worker pid {pid}: {w['points']} points, busy {w['busy']:.1f} s "
+              f"({w['busy'] / m['steady']:.0%} of the steady state)")
+    for warning in m["warnings"]:
+        print(f"  WARNING: {warning}")
+    if m["failed"]:
+        print(f"  WARNING: {m['failed']} points failed")
+
+
+def main(argv=()):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--workers", default="1,2", help="worker counts to measure (default 1,2)")
+    ap.add_argument("--t-end", type=float, default=35.0,
+                    help="simulated time per point [ms] (default 35, a whole default run)")
+    ap.add_argument("--points", type=int, choices=(8, 16), default=8,
+                    help="grid size (default 8); the last points leave a worker idle while "
+                         "another finishes, which weighs less in a longer sweep")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="measure each worker count this many times, alternating (default 1); "
+                         "the median throughput is compared")
+    args = ap.parse_args(list(argv))
+    counts = [int(w) for w in args.workers.split(",")]
+    print(f"sweep benchmark: {os.cpu_count()} cores, load average "
+          f"{', '.join(f'{v:.2f}' for v in os.getloadavg())} (other load slows the workers)")
+    spec = grid(args.t_end, args.points)
+    rates: dict[int, list[float]] = {w: [] for w in counts}
+    for _ in range(args.repeat):
+        for workers in counts:
+            m = measure(workers, spec)
+            report(m)
+            rates[workers].append(m["rate"])
+    median = {w: statistics.median(r) for w, r in rates.items()}
+    if 1 in median and len(median) > 1:
+        for workers, rate in median.items():
+            if workers != 1:
+                speedup = rate / median[1]
+                print(f"sweep speed-up {workers} workers / 1 worker (steady state"
+                      f"{', medians' if args.repeat > 1 else ''}): {speedup:.2f} "
+                      f"(parallel efficiency {speedup / workers:.0%})")
+    return median
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

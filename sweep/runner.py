@@ -5,7 +5,8 @@ The runner owns the order of events that makes a sweep cheap and restartable:
 1. validate the whole grid before anything runs (bad input never reaches a worker);
 2. look at the points folder: a point with a file is done and is not submitted again (resume);
 3. warm the Numba cache in this process with one tiny run, *then* start the workers, so that no
-   worker compiles and no two processes compile into one empty cache;
+   worker compiles and no two processes compile into one empty cache; then call the optional
+   ``on_cluster_ready(client)`` (e.g. ``cluster.warm_workers``, or a benchmark's clock);
 4. submit the missing points (``pure=False``: each call has side effects; ``retries=2``), keep every
    future referenced (Dask cancels work nobody holds), and collect them with ``as_completed``;
 5. write ``DIR/sweep.nc`` from the point files (also when some points failed).
@@ -64,11 +65,12 @@ class SweepOutcome:
 
 
 ProgressFn = Callable[[dict | None, dict], None]
+ClusterReadyFn = Callable[[object], None]
 
 
 def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler: str | None = None,
               progress: ProgressFn | None = None, retry_failed: bool = False,
-              points_dir=None) -> SweepOutcome:
+              points_dir=None, on_cluster_ready: ClusterReadyFn | None = None) -> SweepOutcome:
     """Run every missing point of ``spec`` and write ``out_dir/sweep.nc``.
 
     ``client``: an existing ``distributed.Client`` (left open); otherwise one is made with
@@ -83,6 +85,11 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
     "elapsed_s", "workers"}`` (done includes reused points; workers is the number of Dask workers,
     once known).  Raises ``ParameterError`` for an invalid spec; a ``KeyboardInterrupt``
     propagates after the cluster is shut down (finished points stay stored).
+
+    ``on_cluster_ready(client)`` is called once the client is connected and the workers are
+    checked, right before the points are submitted (not at all if nothing needs computing): the
+    place to warm the workers (``sweep.cluster.warm_workers``) or to start the clock of the
+    steady-state throughput, which then excludes the cluster's start-up.
     """
     t_start = time.perf_counter()
     spec.validate()
@@ -120,6 +127,8 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
             client = make_client(workers=workers, scheduler=scheduler)
         try:
             warnings = check_workers(client)
+            if on_cluster_ready:
+                on_cluster_ready(client)
             counts["workers"] = max(1, len(client.scheduler_info().get("workers", {})))
             futures = _submit(client, todo, points_dir, retry_failed)
             from distributed import as_completed
