@@ -69,7 +69,8 @@ class Operators:
 
     def __init__(self, h, area, kappa, table: NeighbourTable | None = None, rows: int = 5):
         """``rows``: 5 for every derivative (f_x, f_y, f_xx, f_xy, f_yy), 2 for an operator that
-        serves gradients only (``kernels.mfpm.gradient``): it skips the other three rows."""
+        serves gradients only (``kernels.mfpm.derivatives`` into two columns): it skips the
+        other three rows."""
         n = h.shape[0]
         self.h = h
         self.area = area

@@ -32,7 +32,7 @@ from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocit
                             drift, impose_cornea, interface_pressure_change,
                             max_density_deviation, max_speed, tait_pressure, tait_pressure_at,
                             velocity_derivatives)
-from .kernels.mfpm import gradient, hyperviscous_flow_increments
+from .kernels.mfpm import derivatives, hyperviscous_flow_increments
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
 from .membrane import (apex_curvature, apex_fit_nodes, build_membrane, jet_pressure,
                        static_equilibrium)
@@ -223,7 +223,7 @@ class CoupledModel:
         drift(self.x, self.y, self.vx, self.vy, 0.5 * dt, w["x_half"], w["y_half"])
         ops_half.build(w["x_half"], w["y_half"], t_ms)
         tait_pressure(w["rho_half"], rho0, p0, c, gam, w["p_half"])
-        gradient(w["p_half"], 1.0, *ops_half.args(), self._grad_p)
+        derivatives(w["p_half"], 1.0, *ops_half.args(), self._grad_p)
         w["vx_new"][:] = 0.0
         w["vy_new"][:] = 0.0
         advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p, self.dvx, self.dvy,

@@ -127,7 +127,8 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
     pairs inside the support (r < kappa max(h_i, h_j)) are kept, in the table's order, as node i's
     pairs p = start[i] ... start[i] + count[i] - 1 of the flat arrays ``nbr[p]``, ``mirrored[p]``,
     ``weights[beta, p]`` and ``lap_b[p]`` (start[i + 1] - start[i] >= the table's count for i).
-    ``weights`` has 5 rows (beta = 0..4), or 2 when only gradients are wanted.
+    ``weights`` has 5 rows (beta = 0..4), or 2 when only gradients are wanted (``derivatives``
+    into two columns).
     Contiguous pair data keep the derivative loops in cache.  A pair outside the support has W = 0
     and contributes exactly nothing, so dropping it changes no result.
 
@@ -256,12 +257,13 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
 
 @njit(cache=True)
 def derivatives(f, parity, start, nbr, mirrored, count, weights, out):
-    """out[i, :] = (f_x, f_y, f_xx, f_xy, f_yy) at every node.
+    """out[i, :] = (f_x, f_y, f_xx, f_xy, f_yy) at every node, or only the gradient (f_x, f_y)
+    when ``out`` has two columns (all an operator built with two weight rows can give).
 
     ``parity`` is +1 for a field even in x (density, pressure, v_y), -1 for an odd one (v_x).
     """
-    n = f.shape[0]
-    for i in range(n):
+    full = out.shape[1] == 5
+    for i in range(f.shape[0]):
         d0 = 0.0
         d1 = 0.0
         d2 = 0.0
@@ -274,32 +276,16 @@ def derivatives(f, parity, start, nbr, mirrored, count, weights, out):
             df = fj - fi
             d0 += weights[0, k] * df
             d1 += weights[1, k] * df
-            d2 += weights[2, k] * df
-            d3 += weights[3, k] * df
-            d4 += weights[4, k] * df
+            if full:  # loop-invariant: the compiler splits the loop in two
+                d2 += weights[2, k] * df
+                d3 += weights[3, k] * df
+                d4 += weights[4, k] * df
         out[i, 0] = d0
         out[i, 1] = d1
-        out[i, 2] = d2
-        out[i, 3] = d3
-        out[i, 4] = d4
-
-
-@njit(cache=True)
-def gradient(f, parity, start, nbr, mirrored, count, weights, out):
-    """out[i, :] = (f_x, f_y) at every node: the first two components of ``derivatives`` (the
-    operator may hold only the first two rows of weights)."""
-    for i in range(f.shape[0]):
-        d0 = 0.0
-        d1 = 0.0
-        fi = f[i]
-        for k in range(start[i], start[i] + count[i]):
-            j = nbr[k]
-            fj = parity * f[j] if mirrored[k] else f[j]
-            df = fj - fi
-            d0 += weights[0, k] * df
-            d1 += weights[1, k] * df
-        out[i, 0] = d0
-        out[i, 1] = d1
+        if full:
+            out[i, 2] = d2
+            out[i, 3] = d3
+            out[i, 4] = d4
 
 
 @njit(cache=True)
