@@ -8,7 +8,7 @@ MFPM.  At node i the derivative vector D f = (f_x, f_y, f_xx, f_xy, f_yy) solves
 with P = (dx, dy, dx^2/2, dx dy, dy^2/2) and projection functions W_alpha,ij = P_alpha(x_j - x_i) W(r_ij)
 (monomial-weighted Wendland C2 kernel; the monomials are scaled by s_i = kappa h_i so that A is
 well conditioned).  A is symmetric positive definite when the neighbours span the quadratics; it
-depends on positions only, so it is factored once per evaluation (hand-written Cholesky) and the
+depends on positions only, so it is inverted once per evaluation (written-out LDL^T) and the
 result is stored as five weights per pair:
 
     D_beta f_i = sum_j c_ij,beta (f_j - f_i).
