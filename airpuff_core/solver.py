@@ -124,7 +124,7 @@ class CoupledModel:
         tait_pressure_at(self.cornea, self.rho, si["rho_f"], si["p0"], self.c, si["gamma"],
                          self.p_interface)
         # work arrays (allocated once)
-        self._w = {k: np.empty(n) for k in ("w1", "w2", "hv_rho", "hv_vx", "hv_vy", "rho_half",
+        self._w = {k: np.empty(n) for k in ("hv_rho", "hv_vx", "hv_vy", "rho_half",
                                             "p_half", "vx_new", "vy_new", "x_new", "y_new",
                                             "rho_new", "div_new", "x_half", "y_half")}
         self._grad_p = np.zeros((n, 2))

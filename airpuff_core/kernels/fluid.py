@@ -23,14 +23,19 @@ CORNEA = 3
 
 
 @njit(cache=True)
+def _axisymmetric_divergence(x, vx, dvx_dx, dvy_dy):
+    """dvx/dx + vx/x + dvy/dy [1/s], with the axis limit vx/x -> dvx/dx at x = 0."""
+    if x < AXIS_EPS:
+        return 2.0 * dvx_dx + dvy_dy
+    return dvx_dx + dvy_dy + vx / x
+
+
+@njit(cache=True)
 def velocity_derivatives(x, vx, vy, start, nbr, mirrored, count, weights, dvx, dvy, div):
     """Derivative vectors of vx (odd in x) and vy (even), and the axisymmetric divergence."""
     derivatives_pair(vx, -1.0, vy, 1.0, start, nbr, mirrored, count, weights, dvx, dvy)
     for i in range(x.shape[0]):
-        if x[i] < AXIS_EPS:
-            div[i] = 2.0 * dvx[i, 0] + dvy[i, 1]
-        else:
-            div[i] = dvx[i, 0] + dvy[i, 1] + vx[i] / x[i]
+        div[i] = _axisymmetric_divergence(x[i], vx[i], dvx[i, 0], dvy[i, 1])
 
 
 @njit(cache=True)
@@ -47,10 +52,7 @@ def divergence_at(nodes, x, vx, vy, start, nbr, mirrored, count, weights, div):
             fj = -vx[j] if mirrored[k] else vx[j]
             dvx_dx += weights[0, k] * (fj - vxi)
             dvy_dy += weights[1, k] * (vy[j] - vyi)
-        if x[i] < AXIS_EPS:
-            div[i] = 2.0 * dvx_dx + dvy_dy
-        else:
-            div[i] = dvx_dx + dvy_dy + vxi / x[i]
+        div[i] = _axisymmetric_divergence(x[i], vxi, dvx_dx, dvy_dy)
 
 
 @njit(cache=True)
