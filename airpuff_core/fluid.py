@@ -1,8 +1,10 @@
-"""The fluid's discrete operators at one set of node positions (MFPM weights + Brookshaw Laplacian).
+"""The fluid's discrete operators at one set of node positions (MFPM derivatives + Brookshaw
+Laplacian).
 
-``Operators.build(x, y)`` runs the cell-list search and factors every node's moment matrix once;
-the derivative of any field is then a dot product with stored weights.  Arrays are allocated once
-per run and reused, so a time step allocates nothing per particle.
+``Operators.derivatives(x, y, fields, parity, out)`` builds every node's MFPM operator at (x, y)
+and applies it to the fields in the same pass; ``Operators.laplacian_args()`` gives the Brookshaw
+pair lists kept by the last full build with ``laplacian=True``.  Arrays are allocated once per run
+and reused, so a time step allocates nothing per particle.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SimulationError
-from .kernels.mfpm import compute_weights, hyperviscous_term, near_nodes
+from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
 from .kernels.neighbours import build_neighbours, max_squared_move
 
 MAX_NEIGHBOURS = 128
@@ -21,22 +23,32 @@ SKIN = 0.15  # neighbour lists search (1 + SKIN) times the support, and are reus
 
 
 class NeighbourTable:
-    """Verlet neighbour lists with a skin, shared by the operators at t^n, t^{n+1/2}, t^{n+1}."""
+    """Verlet neighbour lists with a skin, shared by the operators at t^n, t^{n+1/2}, t^{n+1}.
+
+    Stored flat: node i's candidates are p = start[i] ... start[i + 1] - 1, with ``nbr[p]`` and
+    ``mirrored[p]`` (1 for the mirror image of node nbr[p] across the axis).
+    """
 
     def __init__(self, h, kappa, skin=SKIN):
+        """h: node spacing [m]; kappa: support radius / spacing."""
         n = h.shape[0]
         self.h = h
         self.kappa = kappa
         self.skin = skin
+        self.start = np.zeros(n + 1, np.int64)
         # unsigned indices: numba then emits no negative-index wrap-around check in the pair loops
         # (about 30 % faster, measured)
-        self.nbr = np.zeros((n, MAX_NEIGHBOURS), np.uint32)
-        self.mirrored = np.zeros((n, MAX_NEIGHBOURS), np.int8)
-        self.count = np.zeros(n, np.int64)
+        self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.uint32)
+        self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
         self.x_ref = None
         self.y_ref = None
         self.max_move = 0.5 * skin * kappa * float(h.min())
         self.searches = 0
+
+    @property
+    def count(self):
+        """Number of candidates of each node."""
+        return np.diff(self.start)
 
     def update(self, x, y, time_ms=None):
         """Search again if some node moved more than half the skin since the last search."""
@@ -44,8 +56,8 @@ class NeighbourTable:
             move2 = max_squared_move(x, y, self.x_ref, self.y_ref)
             if move2 < self.max_move ** 2:  # False for NaN: a blown-up state is searched, and fails
                 return
-        status = build_neighbours(x, y, self.h, self.kappa * (1.0 + self.skin), self.nbr,
-                                  self.mirrored, self.count)
+        status = build_neighbours(x, y, self.h, self.kappa * (1.0 + self.skin), MAX_NEIGHBOURS,
+                                  self.start, self.nbr, self.mirrored)
         if status < 0:
             raise SimulationError(
                 "fluid blew up: node positions are not finite"
@@ -65,70 +77,73 @@ class NeighbourTable:
 
 
 class Operators:
-    """MFPM weights and Brookshaw coefficients for one configuration, on a shared neighbour table."""
+    """MFPM derivatives at given positions, and the Brookshaw Laplacian of the last full build with
+    ``laplacian=True``, on a shared neighbour table."""
 
-    def __init__(self, h, area, kappa, table: NeighbourTable | None = None, rows: int = 5):
-        """``rows``: 5 for every derivative (f_x, f_y, f_xx, f_xy, f_yy), 2 for an operator that
-        serves gradients only (``kernels.mfpm.derivatives`` into two columns): it skips the
-        other three rows."""
+    def __init__(self, h, area, kappa, table: NeighbourTable | None = None):
         n = h.shape[0]
         self.h = h
         self.area = area
         self.kappa = kappa
         self.table = table if table is not None else NeighbourTable(h, kappa)
-        # this configuration's own pairs (those of the table inside the support), stored flat:
-        # node i owns pairs start[i] ... start[i] + count[i] - 1.  The arrays are sized for the
-        # fullest table; only the pages in use are touched.
+        self.inv_h = 1.0 / h
+        # the Brookshaw pair lists: node i owns pairs start[i] ... start[i] + count[i] - 1 (the
+        # support's pairs, in the table's order).  Sized for the fullest table; only the pages in
+        # use are touched.
         self.start = np.zeros(n + 1, np.int64)
         self.count = np.zeros(n, np.int64)
         self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.uint32)
         self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
-        self.weights = np.zeros((rows, n * MAX_NEIGHBOURS))  # one row per derivative
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
-        self.cond = np.zeros(n)
+        self.cond = np.zeros(n)  # 1-norm condition number of each node's scaled moment matrix
         self.all_nodes = np.arange(n)
-        self._table_search = -1  # the table search the pair layout was made for
+        self._no_fields = np.zeros((0, n))
+        self._no_out = np.zeros((0, n, 2))
+        self._no_parity = np.zeros(0)
+        self.has_laplacian = False
 
-    def build(self, x, y, time_ms=None, active=None):
-        """Factor the moment matrices at positions (x, y) [m] (updating the neighbour table first).
+    def derivatives(self, x, y, fields, parity, out, nodes=None, laplacian=False, time_ms=None):
+        """out[f, i, :] = (f_x, f_y, f_xx, f_xy, f_yy) of fields[f] at node i, or (f_x, f_y) when
+        ``out`` has 2 columns, with every node's operator built at the positions (x, y) [m].
 
-        With ``active`` (node indices) only those nodes' weights are recomputed: used within one
-        time step, when only the cornea has moved.  If the neighbour table was searched again since
-        the last full build, every node is rebuilt.
+        fields: (n_fields, n) array; parity: +1 for a field even in x (density, pressure, v_y),
+        -1 for an odd one (v_x); out: (n_fields, n, 5 or 2).  ``nodes``: only these nodes (the
+        others' rows of ``out`` are left as they are).  ``laplacian=True`` (all nodes only) also
+        keeps the Brookshaw pair lists for ``laplacian_args``.  The neighbour table is updated
+        first.  An ill-conditioned or singular moment matrix raises ``SimulationError``.
         """
         t = self.table
         t.update(x, y, time_ms)
-        if t.searches != self._table_search:
-            active = None
-            np.cumsum(t.count, out=self.start[1:])
-            self._table_search = t.searches
-        if active is None:
-            active = self.all_nodes
-        status = compute_weights(x, y, self.h, self.area, self.kappa, t.nbr, t.mirrored, t.count,
-                                 COND_MAX, active, self.start, self.nbr, self.mirrored, self.count,
-                                 self.weights, self.lap_b, self.cond)
+        if nodes is None:
+            nodes = self.all_nodes
+        elif laplacian:
+            raise ValueError("laplacian=True needs every node")
+        if laplacian:
+            self.start[:] = t.start
+        status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
+                                  t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
+                                  self.count, self.nbr, self.mirrored, self.lap_b, laplacian)
+        if laplacian:
+            self.has_laplacian = True
         if status:
             i = status - 1
             raise SimulationError(
                 f"MFPM moment matrix of node {i} is ill-conditioned (condition {self.cond[i]:.3g} "
-                f"> {COND_MAX:.0e}, {self.count[i]} neighbours)"
-                + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms, "conditioning")
+                f"> {COND_MAX:.0e}, {t.start[i + 1] - t.start[i]} candidate neighbours)"
+                + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms,
+                "conditioning")
+        return out
+
+    def build(self, x, y, time_ms=None):
+        """The operators at (x, y) [m] with no field: the Brookshaw pair lists and ``cond``."""
+        self.derivatives(x, y, self._no_fields, self._no_parity, self._no_out, laplacian=True,
+                         time_ms=time_ms)
         return self
-
-    def nodes_near(self, targets_mask):
-        """Indices of the nodes that are in ``targets_mask`` or have a neighbour in it.
-
-        Searched in the neighbour table, whose skin adds a margin: a node just outside the support
-        whose weights a small move of the targets would change is included.
-        """
-        return near_nodes(targets_mask, self.table.nbr, self.table.count)
-
-    def args(self):
-        """(start, nbr, mirrored, count, weights) for the derivative kernels."""
-        return self.start, self.nbr, self.mirrored, self.count, self.weights
 
     def laplacian_args(self):
         """(start, nbr, mirrored, count, lap_b) for the Brookshaw-Laplacian kernels."""
+        if not self.has_laplacian:
+            raise RuntimeError("no Brookshaw pair lists: build with laplacian=True first")
         return self.start, self.nbr, self.mirrored, self.count, self.lap_b
 
     def hyperviscous(self, f, parity, scale, work1, work2, out):

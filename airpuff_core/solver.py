@@ -28,11 +28,11 @@ import numpy as np
 from .errors import SimulationError
 from .fluid import NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
-from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity, divergence_at,
-                            drift, impose_cornea, interface_pressure_change,
-                            max_density_deviation, max_speed, tait_pressure, tait_pressure_at,
-                            velocity_derivatives)
-from .kernels.mfpm import derivatives, hyperviscous_flow_increments
+from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity,
+                            axisymmetric_divergence, drift, impose_cornea,
+                            interface_pressure_change, max_density_deviation, max_speed,
+                            tait_pressure, tait_pressure_at)
+from .kernels.mfpm import hyperviscous_flow_increments
 from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
 from .membrane import (apex_curvature, apex_fit_nodes, build_membrane, jet_pressure,
                        static_equilibrium)
@@ -49,6 +49,8 @@ MEMBRANE_SAFETY = 0.4  # membrane sub-step <= MEMBRANE_SAFETY * min chord / wave
 P_REF = 1.0  # Pa: floor of the normalisation of the coupling residual (meaningful at rest)
 BLOWUP_SPEED = 50.0  # m/s: a fluid speed above this is a blow-up (physical speeds ~0.2-1 m/s)
 BLOWUP_DENSITY = 0.2  # relative density change beyond which the run is declared blown up
+VELOCITY_PARITY = np.array([-1.0, 1.0])  # v_x is odd in x, v_y even
+PRESSURE_PARITY = np.array([1.0])
 
 
 def sound_speed(rule, c0, c_slope, v_prev, v_running):
@@ -80,7 +82,6 @@ class CoupledModel:
         n = ch.n
         self.kind = ch.kind
         self.cornea = ch.cornea
-        self.is_cornea = ch.kind == CORNEA
         self.x = ch.x.copy()
         self.y = ch.y.copy()
         self.vx = np.zeros(n)
@@ -107,18 +108,19 @@ class CoupledModel:
         self.h_min = float(ch.h.min())
         self.hv_scale_unit = ch.h ** 5  # HV scale per unit gamma c
         self.neighbours = NeighbourTable(ch.h, KAPPA)
-        self.ops_n = Operators(ch.h, ch.area, KAPPA, self.neighbours).build(self.x, self.y)
-        self.ops_half = Operators(ch.h, ch.area, KAPPA, self.neighbours, rows=2)  # grad p only
+        # operators at t^n (its Brookshaw lists serve the hyperviscosity), t^{n+1/2}, t^{n+1}
+        self.ops_n = Operators(ch.h, ch.area, KAPPA, self.neighbours)
+        self.ops_half = Operators(ch.h, ch.area, KAPPA, self.neighbours)
         self.ops_new = Operators(ch.h, ch.area, KAPPA, self.neighbours)
+        self._velocity = np.empty((2, n))  # (v_x, v_y) stacked for the MFPM kernel
+        self.dv = np.zeros((2, n, 5))  # derivative vectors of v_x (dv[0]) and v_y (dv[1])
+        self.div = np.zeros(n)
+        self._velocity_derivatives(self.ops_n, self.x, self.y, self.vx, self.vy, self.dv,
+                                   self.div, laplacian=True)
         self.hv_radius_unit, self.hv_mode = self.ops_n.hyperviscous_spectral_radius(
             self.hv_scale_unit)
         self.hv_radius_max = self.hv_radius_unit
         self._hv_age = 0
-        self.dvx = np.zeros((n, 5))
-        self.dvy = np.zeros((n, 5))
-        self.div = np.zeros(n)
-        velocity_derivatives(self.x, self.vx, self.vy, *self.ops_n.args(), self.dvx, self.dvy,
-                             self.div)
         self.c = sound_speed(params.c_rule, si["c0"], si["c_slope"], 0.0, 0.0)
         self.p_interface = np.empty(self.cornea.shape[0])  # fluid pressure on the cornea [Pa]
         tait_pressure_at(self.cornea, self.rho, si["rho_f"], si["p0"], self.c, si["gamma"],
@@ -127,19 +129,16 @@ class CoupledModel:
         self._w = {k: np.empty(n) for k in ("hv_rho", "hv_vx", "hv_vy", "rho_half",
                                             "p_half", "vx_new", "vy_new", "x_new", "y_new",
                                             "rho_new", "div_new", "x_half", "y_half")}
-        self._grad_p = np.zeros((n, 2))
+        self._grad_p = np.zeros((1, n, 2))  # (p_x, p_y) at t^{n+1/2}
         self._hv_work = np.empty((9, n))
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self.last_hv_substeps = 0
-        self._dvx_new = np.zeros((n, 5))
-        self._dvy_new = np.zeros((n, 5))
+        self._dv_new = np.zeros((2, n, 5))
         N = X.shape[0]
         self._mF = {k: np.empty(N) for k in ("Fx", "Fy", "q")}
         self._membrane_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_trial = (np.empty(N), np.empty(N))  # interface pressure estimates [Pa]
-        self._near_cornea = None  # nodes with a cornea node in their neighbour table
-        self._near_cornea_search = -1  # the table search it was made for
         self._p_interface_n = np.empty(N)  # interface pressure at t^n with this step's c [Pa]
         self.last_iterations = 0
         self.last_residual = 0.0
@@ -169,12 +168,22 @@ class CoupledModel:
         self.dt_limits = {"acoustic": dt_ac, "hyperviscosity": dt_hv}
         return dt_ac
 
+    def _velocity_derivatives(self, ops, x, y, vx, vy, dv, div, nodes=None, laplacian=False,
+                              time_ms=None):
+        """dv[0] = D v_x, dv[1] = D v_y and the axisymmetric divergence ``div`` [1/s] at
+        ``nodes`` (default all), with the operators of ``ops`` built at (x, y) [m]."""
+        velocity = self._velocity
+        velocity[0] = vx
+        velocity[1] = vy
+        ops.derivatives(x, y, velocity, VELOCITY_PARITY, dv, nodes, laplacian, time_ms)
+        axisymmetric_divergence(ops.all_nodes if nodes is None else nodes, x, vx, dv[0], dv[1],
+                                div)
+
     def refresh_derivatives(self):
         """Recompute the operators and velocity derivatives at the current state (after the state
         arrays were set from outside, e.g. by the stability analysis)."""
-        self.ops_n.build(self.x, self.y)
-        velocity_derivatives(self.x, self.vx, self.vy, *self.ops_n.args(), self.dvx, self.dvy,
-                             self.div)
+        self._velocity_derivatives(self.ops_n, self.x, self.y, self.vx, self.vy, self.dv,
+                                   self.div, laplacian=True)
 
     def step(self, t_stop=None, dt=None):
         """Advance by one coupled step (dt from the stability limits unless given) [s]."""
@@ -221,12 +230,13 @@ class CoupledModel:
             w["hv_vy"][:] = 0.0
         advance_density(self.rho, self.rho, self.div, 0.5 * dt, w["hv_rho"], dt, w["rho_half"])
         drift(self.x, self.y, self.vx, self.vy, 0.5 * dt, w["x_half"], w["y_half"])
-        ops_half.build(w["x_half"], w["y_half"], t_ms)
         tait_pressure(w["rho_half"], rho0, p0, c, gam, w["p_half"])
-        derivatives(w["p_half"], 1.0, *ops_half.args(), self._grad_p)
+        ops_half.derivatives(w["x_half"], w["y_half"], w["p_half"][np.newaxis], PRESSURE_PARITY,
+                             self._grad_p, time_ms=t_ms)
         w["vx_new"][:] = 0.0
         w["vy_new"][:] = 0.0
-        advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p, self.dvx, self.dvy,
+        advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p[0], self.dv[0],
+                         self.dv[1],
                          w["rho_half"], self.rho, si["mu"], dt, w["hv_vx"], w["hv_vy"],
                          w["vx_new"], w["vy_new"])
         drift(w["x_half"], w["y_half"], w["vx_new"], w["vy_new"], 0.5 * dt, w["x_new"], w["y_new"])
@@ -247,23 +257,11 @@ class CoupledModel:
                              mem.nu, mem.k, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
                              mF["Fx"], mF["Fy"], mF["q"])
             impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
-            if it == 1 or not self.reuse:
-                ops_new.build(w["x_new"], w["y_new"], t_ms)
-                if self._near_cornea_search != self.neighbours.searches:
-                    # the nodes that see the cornea change only with the neighbour table
-                    self._near_cornea = ops_new.nodes_near(self.is_cornea)
-                    self._near_cornea_search = self.neighbours.searches
-                near_cornea = self._near_cornea
-            else:
-                # only the cornea moved since iteration 1: rebuild the nodes that see it
-                ops_new.build(w["x_new"], w["y_new"], t_ms, active=near_cornea)
-            if self.reuse:
-                # only the cornea's density enters the coupling: the full field follows
-                divergence_at(cornea, w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
-                              w["div_new"])
-            else:
-                velocity_derivatives(w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
-                                     self._dvx_new, self._dvy_new, w["div_new"])
+            # only the cornea's density enters the coupling: the operators of the cornea nodes
+            # suffice (every node, with reuse=False), the full field follows convergence
+            self._velocity_derivatives(ops_new, w["x_new"], w["y_new"], w["vx_new"],
+                                       w["vy_new"], self._dv_new, w["div_new"],
+                                       cornea if self.reuse else None, time_ms=t_ms)
             advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
                             w["rho_new"])
             residual = interface_pressure_change(cornea, w["rho_new"], rho0, p0, c, gam, P_REF,
@@ -281,8 +279,8 @@ class CoupledModel:
                 t_ms, "coupling")
         self.last_iterations = it
         self.last_residual = residual
-        velocity_derivatives(w["x_new"], w["vx_new"], w["vy_new"], *ops_new.args(),
-                             self._dvx_new, self._dvy_new, w["div_new"])
+        self._velocity_derivatives(ops_new, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"],
+                                   self._dv_new, w["div_new"], laplacian=True, time_ms=t_ms)
         advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
                         w["rho_new"])
 
@@ -295,8 +293,7 @@ class CoupledModel:
         self.vy, w["vy_new"] = w["vy_new"], self.vy
         self.rho, w["rho_new"] = w["rho_new"], self.rho
         self.div, w["div_new"] = w["div_new"], self.div
-        self.dvx, self._dvx_new = self._dvx_new, self.dvx
-        self.dvy, self._dvy_new = self._dvy_new, self.dvy
+        self.dv, self._dv_new = self._dv_new, self.dv
         self.ops_n, self.ops_new = ops_new, ops_n
         self.t += dt
         vmax = max_speed(self.vx, self.vy)

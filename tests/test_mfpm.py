@@ -12,7 +12,7 @@ from airpuff_core.errors import SimulationError
 from airpuff_core.fluid import Operators
 from airpuff_core.geometry import build_chamber
 from airpuff_core.kernels.fluid import AXIS, CORNEA, WALL
-from airpuff_core.kernels.mfpm import brookshaw_laplacian, derivatives, spd_inverse5
+from airpuff_core.kernels.mfpm import brookshaw_laplacian, spd_inverse5
 from airpuff_core.solver import KAPPA
 
 R, RP, A0 = 7e-3, 2.04e-3, math.radians(60)
@@ -41,12 +41,18 @@ def exact_quadratics(x, y):
     return (even, d_even, 1.0), (odd, d_odd, -1.0)
 
 
+def derivative_vector(ops, x, y, f, parity, columns=5, nodes=None):
+    """D f at every node (rows of the other nodes NaN when ``nodes`` is given)."""
+    out = np.full((1, x.shape[0], columns), np.nan)
+    ops.derivatives(x, y, f[np.newaxis], np.array([parity]), out, nodes)
+    return out[0]
+
+
 def max_relative_error(x, y, chamber):
-    ops = Operators(chamber.h, chamber.area, KAPPA).build(x, y)
+    ops = Operators(chamber.h, chamber.area, KAPPA)
     worst = {}
     for f, dexact, parity in exact_quadratics(x, y):
-        out = np.empty((x.shape[0], 5))
-        derivatives(f, parity, *ops.args(), out)
+        out = derivative_vector(ops, x, y, f, parity)
         scale = np.abs(dexact).max()  # one scale per field: some components are exactly 0
         err = np.abs(out - dexact) / scale
         for kind, name in ((0, "interior"), (AXIS, "axis"), (WALL, "wall"), (CORNEA, "cornea")):
@@ -89,9 +95,7 @@ def smooth_errors(resolution):
     fy = ky * np.cos(kx * x) * np.cos(ky * y)
     fxx = -kx ** 2 * f
     fyy = -ky ** 2 * f
-    ops = Operators(ch.h, ch.area, KAPPA).build(x, y)
-    out = np.empty((ch.n, 5))
-    derivatives(f, 1.0, *ops.args(), out)
+    out = derivative_vector(Operators(ch.h, ch.area, KAPPA), x, y, f, 1.0)
     grad_err = np.sqrt(np.mean((out[:, 0] - fx) ** 2 + (out[:, 1] - fy) ** 2)) / ky
     lap_err = np.sqrt(np.mean((out[:, 2] + out[:, 4] - fxx - fyy) ** 2)) / ky ** 2
     return ch.h.max(), grad_err, lap_err
@@ -112,6 +116,9 @@ def test_ill_conditioned_support_is_an_error():
     ch = build_chamber("sector", "isotropic", "coarse", R, RP, A0)
     with pytest.raises(SimulationError, match="ill-conditioned"):
         Operators(ch.h, ch.area, 1.2).build(ch.x, ch.y)
+    with pytest.raises(SimulationError, match="ill-conditioned"):
+        derivative_vector(Operators(ch.h, ch.area, 1.2), ch.x, ch.y, ch.x, -1.0,
+                          nodes=np.flatnonzero(ch.kind == WALL))
 
 
 def test_spd_inverse5_matches_numpy_and_flags_indefinite_matrices():
@@ -164,21 +171,30 @@ def reference_operators(x, y, h, area, f, parity):
 
 
 def test_fast_operators_equal_their_definition_on_a_smooth_field():
-    """The optimised kernels (skin-filtered flat pair lists, written-out inverse, vectorised
-    moment loop) give the derivatives and the Brookshaw Laplacian of the plain definition, for a
-    field that no quadratic reproduces, to round-off."""
+    """The optimised kernel (skin-filtered candidate lists, written-out inverse, vectorised
+    loops, several fields per build) gives the derivatives and the Brookshaw Laplacian of the
+    plain definition, for fields that no quadratic reproduces, to round-off; so do its variants
+    the solver uses: the gradient only, and a subset of the nodes (the cornea in the coupling
+    iterations)."""
     ch = build_chamber("sector", "isotropic", "coarse", R, RP, A0)
     x, y = perturbed(ch, 0.2)
-    ops = Operators(ch.h, ch.area, KAPPA).build(x, y)
-    grad_ops = Operators(ch.h, ch.area, KAPPA, rows=2).build(x, y)
-    for parity, f in ((1.0, np.cos(900 * x) * np.exp(300 * y)), (-1.0, np.sin(900 * x) * y)):
-        ref_d, ref_lap = reference_operators(x, y, ch.h, ch.area, f, parity)
-        out = np.empty((ch.n, 5))
-        derivatives(f, parity, *ops.args(), out)
+    ops = Operators(ch.h, ch.area, KAPPA)
+    fields = np.array([np.cos(900 * x) * np.exp(300 * y), np.sin(900 * x) * y])
+    parity = np.array([1.0, -1.0])
+    both = np.empty((2, ch.n, 5))
+    ops.derivatives(x, y, fields, parity, both, laplacian=True)
+    cornea = np.flatnonzero(ch.kind == CORNEA)
+    for k in range(2):
+        f = fields[k]
+        ref_d, ref_lap = reference_operators(x, y, ch.h, ch.area, f, parity[k])
         lap = np.empty(ch.n)
-        brookshaw_laplacian(f, parity, *ops.laplacian_args(), lap)
-        assert np.max(np.abs(out - ref_d) / np.abs(ref_d).max(axis=0)) < 1e-9
+        brookshaw_laplacian(f, parity[k], *ops.laplacian_args(), lap)
+        assert np.max(np.abs(both[k] - ref_d) / np.abs(ref_d).max(axis=0)) < 1e-9
         assert np.max(np.abs(lap - ref_lap)) < 1e-11 * np.abs(ref_lap).max()
-        grad = np.empty((ch.n, 2))
-        derivatives(f, parity, *grad_ops.args(), grad)  # the solver's gradient-only operator
-        assert np.max(np.abs(grad - ref_d[:, :2]) / np.abs(ref_d[:, :2]).max(axis=0)) < 1e-9
+        # one field alone, the gradient only, and the cornea only: the same sums
+        assert np.array_equal(derivative_vector(ops, x, y, f, parity[k]), both[k])
+        assert np.array_equal(derivative_vector(ops, x, y, f, parity[k], columns=2),
+                              both[k][:, :2])
+        sub = derivative_vector(ops, x, y, f, parity[k], nodes=cornea)
+        assert np.array_equal(sub[cornea], both[k][cornea])
+        assert np.isnan(np.delete(sub, cornea, axis=0)).all()  # no other row is written

@@ -13,7 +13,6 @@ the membrane).  Only INTERIOR and AXIS nodes integrate the momentum equation.
 import numpy as np
 from numba import njit
 
-from .mfpm import derivatives_pair
 from .neighbours import AXIS_EPS
 
 INTERIOR = 0
@@ -31,28 +30,11 @@ def _axisymmetric_divergence(x, vx, dvx_dx, dvy_dy):
 
 
 @njit(cache=True)
-def velocity_derivatives(x, vx, vy, start, nbr, mirrored, count, weights, dvx, dvy, div):
-    """Derivative vectors of vx (odd in x) and vy (even), and the axisymmetric divergence."""
-    derivatives_pair(vx, -1.0, vy, 1.0, start, nbr, mirrored, count, weights, dvx, dvy)
-    for i in range(x.shape[0]):
-        div[i] = _axisymmetric_divergence(x[i], vx[i], dvx[i, 0], dvy[i, 1])
-
-
-@njit(cache=True)
-def divergence_at(nodes, x, vx, vy, start, nbr, mirrored, count, weights, div):
-    """The axisymmetric divergence of (vx, vy) at the listed nodes only (the same sums as
-    ``velocity_derivatives``): what a coupling iteration needs at the cornea."""
+def axisymmetric_divergence(nodes, x, vx, dvx, dvy, div):
+    """div[i] = dvx/dx + vx/x + dvy/dy [1/s] at the listed nodes, from the derivative vectors
+    ``dvx``, ``dvy`` (columns 0 = d/dx, 1 = d/dy)."""
     for i in nodes:
-        dvx_dx = 0.0
-        dvy_dy = 0.0
-        vxi = vx[i]
-        vyi = vy[i]
-        for k in range(start[i], start[i] + count[i]):
-            j = nbr[k]
-            fj = -vx[j] if mirrored[k] else vx[j]
-            dvx_dx += weights[0, k] * (fj - vxi)
-            dvy_dy += weights[1, k] * (vy[j] - vyi)
-        div[i] = _axisymmetric_divergence(x[i], vxi, dvx_dx, dvy_dy)
+        div[i] = _axisymmetric_divergence(x[i], vx[i], dvx[i, 0], dvy[i, 1])
 
 
 @njit(cache=True)

@@ -8,12 +8,11 @@ MFPM.  At node i the derivative vector D f = (f_x, f_y, f_xx, f_xy, f_yy) solves
 with P = (dx, dy, dx^2/2, dx dy, dy^2/2) and projection functions W_alpha,ij = P_alpha(x_j - x_i) W(r_ij)
 (monomial-weighted Wendland C2 kernel; the monomials are scaled by s_i = kappa h_i so that A is
 well conditioned).  A is symmetric positive definite when the neighbours span the quadratics; it
-depends on positions only, so it is inverted once per evaluation (written-out LDL^T) and the
-result is stored as five weights per pair:
+depends on positions only and is inverted once per node and evaluation (written-out LDL^T):
 
-    D_beta f_i = sum_j c_ij,beta (f_j - f_i).
+    D f_i = S_i A_i^-1 b_i(f),   b_i(f) = sum_j P(x_j - x_i) W_ij (f_j - f_i).
 
-Every field's derivatives are then dot products over the neighbours.  The operator reproduces the
+Several fields share one build (one A^-1 per node).  The operator reproduces the
 derivatives of any quadratic field to round-off, on irregular clouds and one-sided boundary
 stencils alike.  A moment matrix whose 1-norm condition number exceeds ``cond_max`` is an error.
 
@@ -117,85 +116,108 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
     return max(c0, c1, c2, c3, c4)
 
 
+LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H^4
+
+
 @njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
-def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count, cond_max,
-                    active, start, nbr, mirrored, count, weights, lap_b, cond):
-    """MFPM pair weights and Brookshaw coefficients for the nodes listed in ``active`` (all nodes,
-    or those near the moving cornea).
+def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
+                     cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_b,
+                     store_laplacian):
+    """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
+    to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
+    or only (f_x, f_y) when ``out`` has two columns.
 
-    The candidate pairs come from the neighbour table (``table_*``, searched with a skin); only the
-    pairs inside the support (r < kappa max(h_i, h_j)) are kept, in the table's order, as node i's
-    pairs p = start[i] ... start[i] + count[i] - 1 of the flat arrays ``nbr[p]``, ``mirrored[p]``,
-    ``weights[beta, p]`` and ``lap_b[p]`` (start[i + 1] - start[i] >= the table's count for i).
-    ``weights`` has 5 rows (beta = 0..4), or 2 when only gradients are wanted (``derivatives``
-    into two columns).
-    Contiguous pair data keep the derivative loops in cache.  A pair outside the support has W = 0
-    and contributes exactly nothing, so dropping it changes no result.
+    The candidate pairs come from the neighbour table, stored flat: node i's are
+    p = start[i] ... start[i + 1] - 1, with neighbour ``nbr[p]`` and ``mirrored[p]`` = 1 for the
+    image (-x_j, y_j).  h [m] is the node spacing (``inv_h`` = 1/h), ``area`` [m^2] the node area
+    in the meridian plane.  Per node i:
+      1. the distances r_ij to the candidates, then the list of those inside the support
+         r_ij < H_ij = kappa max(h_i, h_j): a pair outside has W = 0 and contributes exactly
+         nothing;
+      2. the scaled moment matrix A = sum_j W_ij P_j P_j^T, P_j = (u, v, u^2/2, u v, v^2/2),
+         (u, v) = (x_j - x_i, y_j - y_i) / s_i, s_i = kappa h_i, with the Wendland C2 shape
+         W = (1-q)^4 (4q+1), q = r_ij / H_ij;
+      3. A^-1 by the written-out LDL^T (``spd_inverse5``), and the 1-norm condition number of A
+         into ``cond[i]``;
+      4. for each field, b = sum_j W_ij P_j (f_j - f_i) (f_j times the field's ``parity``, +1
+         even or -1 odd in x, for a mirror image) and D f_i = S A^-1 b, S = diag(1/s, 1/s,
+         1/s^2, 1/s^2, 1/s^2).
 
-    The moment matrix is accumulated in registers (a branch-free loop over the gathered pairs,
-    which LLVM vectorises: the fastmath flags allow only reassociation and fused multiply-adds, so
-    NaN and infinity keep their meaning) and inverted once per node (``spd_inverse5``); the pair
-    weights are then A^-1 (P_j W_j) with no division in the pair loop.  ``cond[i]``
-    receives the 1-norm condition number of the scaled moment matrix.  Returns 0, or i+1 for the
-    first node whose matrix is singular or worse than ``cond_max``.
+    No pair weight is stored: in the solver each operator is applied once, right after its
+    build, so storing weights would only add memory traffic.  The per-node quantities (x, y, h,
+    area) stay in the L1 cache, and only 5 bytes per candidate pair are streamed.  Loops 1 and 2
+    and the field sums run over contiguous scratch arrays without branches, which LLVM vectorises
+    (the fastmath flags allow only reassociation and fused multiply-adds, so NaN and infinity
+    keep their meaning).
+
+    With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
+    b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in
+    lap_*[start[i] ... start[i] + lap_count[i] - 1], for ``brookshaw_laplacian`` and the
+    hyperviscosity.
+
+    Returns 0, or i+1 for the first node whose matrix is singular or worse than ``cond_max``.
     """
-    maxn = table_nbr.shape[1]
-    n_rows = weights.shape[0]  # 5, or 2 for an operator that serves gradients only
-    rk = np.empty(maxn)
-    uk = np.empty(maxn)
-    vk = np.empty(maxn)
-    ik = np.empty(maxn)
-    ck = np.empty(maxn)
-    wk = np.empty(maxn)
-    inv_h = np.empty(h.shape[0])
-    for j in range(h.shape[0]):
-        inv_h[j] = 1.0 / h[j]
+    n_fields = fields.shape[0]
+    n_rows = out.shape[2]  # 5, or 2 for the gradient only
+    width = 1
+    for i in nodes:
+        width = max(width, start[i + 1] - start[i])
+    # scratch rows in one block: separate small allocations may land 4 KiB apart, where the
+    # loads of one row wait on stores to another (4K aliasing; measured 1.5x slower builds)
+    scratch = np.empty((11, width))
+    dxk, dyk, rk, sk, hk, sign_kept, uk, vk, wk, tk, ik = (
+        scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5], scratch[6],
+        scratch[7], scratch[8], scratch[9], scratch[10])
+    index_scratch = np.empty((2, width), np.uint32)
+    keep = index_scratch[0]
+    jk = index_scratch[1]
     inv_kappa = 1.0 / kappa
-    lap_scale = 2.0 * 140.0 / np.pi
     status = 0
-    for i in active:
+    for i in nodes:
         xi = x[i]
         yi = y[i]
         hi = h[i]
         inv_hi = inv_h[i]
         inv_s = inv_kappa * inv_hi
-        base = start[i]
-        # 1. the table's pairs inside the support, gathered into contiguous scratch arrays
-        m = 0
-        for kk in range(table_count[i]):
-            j = table_nbr[i, kk]
-            mir = table_mirrored[i, kk]
-            xj = -x[j] if mir else x[j]
-            dx = xj - xi
+        p0 = start[i]
+        n_cand = start[i + 1] - p0
+        # 1. distances to all candidates (vectorised gathers), then the support's list
+        for k in range(n_cand):
+            p = p0 + k
+            j = nbr[p]
+            sign = 1.0 - 2.0 * mirrored[p]  # x_j's factor: -1 for a mirror image
+            dx = sign * x[j] - xi
             dy = y[j] - yi
             H = kappa * max(hi, h[j])
-            r2 = dx * dx + dy * dy
-            # written unconditionally and kept by advancing m only inside the support: no branch
-            # to mispredict (slot m is free: start[i + 1] - start[i] >= the table's count)
-            nbr[base + m] = j
-            mirrored[base + m] = mir
-            rk[m] = r2
-            uk[m] = dx * inv_s
-            vk[m] = dy * inv_s
-            inv_H = inv_kappa * min(inv_hi, inv_h[j])
-            ik[m] = inv_H
-            ih2 = inv_H * inv_H
-            ck[m] = area[j] * lap_scale * ih2 * ih2
-            m += np.int64(r2 < H * H)
-        count[i] = m
-        # 2. kernel values, Brookshaw coefficients and the moment matrix (a branch-free loop)
+            dxk[k] = dx
+            dyk[k] = dy
+            sk[k] = sign
+            rk[k] = dx * dx + dy * dy
+            hk[k] = H * H
+        m = np.uint64(0)  # unsigned: no negative-index wrap-around check on keep[m]
+        for k in range(n_cand):
+            keep[m] = k
+            m += np.uint64(rk[k] < hk[k])
+        # 2. kernel values and the moment matrix (in registers)
         a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
         a40 = a41 = a42 = a43 = a44 = 0.0
         for k in range(m):
-            q = np.sqrt(rk[k]) * ik[k]
-            u = uk[k]
-            v = vk[k]
+            c = keep[k]
+            j = nbr[p0 + c]
+            inv_H = inv_kappa * min(inv_hi, inv_h[j])
+            q = np.sqrt(rk[c]) * inv_H
             tq = max(1.0 - q, 0.0)  # rounding may put q at 1 for r just below H: W = 0 there
             t3 = tq * tq * tq
-            w = t3 * tq * (4.0 * q + 1.0)  # Wendland C2 shape (1-q)^4 (4q+1)
+            w = t3 * tq * (4.0 * q + 1.0)
+            u = dxk[c] * inv_s
+            v = dyk[c] * inv_s
+            uk[k] = u
+            vk[k] = v
             wk[k] = w
-            # Brookshaw coefficient: 2 A_j (-dW/dr)/r with W = 7/(pi H^2) (1-q)^4 (4q+1)
-            lap_b[base + k] = ck[k] * t3
+            tk[k] = t3
+            ik[k] = inv_H
+            jk[k] = j
+            sign_kept[k] = sk[c]
             p2 = 0.5 * u * u
             p3 = u * v
             p4 = 0.5 * v * v
@@ -214,6 +236,15 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
             a42 += w * p4 * p2
             a43 += w * p4 * p3
             a44 += w * p4 * p4
+        if store_laplacian:
+            for k in range(m):
+                c = keep[k]
+                ih2 = ik[k] * ik[k]
+                lap_nbr[p0 + k] = jk[k]
+                lap_mirrored[p0 + k] = mirrored[p0 + c]
+                lap_b[p0 + k] = area[jk[k]] * LAPLACIAN_SCALE * ih2 * ih2 * tk[k]
+            lap_count[i] = m
+        # 3. inverse and condition number
         (i00, i10, i11, i20, i21, i22, i30, i31, i32, i33,
          i40, i41, i42, i43, i44) = spd_inverse5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33,
                                                  a40, a41, a42, a43, a44)
@@ -228,110 +259,32 @@ def compute_weights(x, y, h, area, kappa, table_nbr, table_mirrored, table_count
                                  i43, i44))
         if not (cond[i] < cond_max) and status == 0:
             status = i + 1
+        # 4. each field's moment vector b, then D f = S A^-1 b
         s1 = inv_s
         s2 = inv_s * inv_s
-        c00 = s1 * i00; c01 = s1 * i10; c02 = s1 * i20; c03 = s1 * i30; c04 = s1 * i40
-        c10 = s1 * i10; c11 = s1 * i11; c12 = s1 * i21; c13 = s1 * i31; c14 = s1 * i41
-        c20 = s2 * i20; c21 = s2 * i21; c22 = s2 * i22; c23 = s2 * i32; c24 = s2 * i42
-        c30 = s2 * i30; c31 = s2 * i31; c32 = s2 * i32; c33 = s2 * i33; c34 = s2 * i43
-        c40 = s2 * i40; c41 = s2 * i41; c42 = s2 * i42; c43 = s2 * i43; c44 = s2 * i44
-        # 3. pair weights A^-1 P_j W_j, one row per derivative (the first two rows only for a
-        # gradient-only operator)
-        for k in range(m):
-            w = wk[k]
-            u = uk[k]
-            v = vk[k]
-            p0 = u * w
-            p1 = v * w
-            p2 = 0.5 * u * u * w
-            p3 = u * v * w
-            p4 = 0.5 * v * v * w
-            weights[0, base + k] = c00 * p0 + c01 * p1 + c02 * p2 + c03 * p3 + c04 * p4
-            weights[1, base + k] = c10 * p0 + c11 * p1 + c12 * p2 + c13 * p3 + c14 * p4
+        for f in range(n_fields):
+            fi = fields[f, i]
+            odd = 0.5 * (1.0 - parity[f])  # 0 for an even field, 1 for an odd one
+            b0 = b1 = b2 = b3 = b4 = 0.0
+            for k in range(m):
+                # an image of an odd field carries -f_j: (1 - sign) odd f_j is then 2 f_j
+                fj = fields[f, jk[k]]
+                df = fj - (1.0 - sign_kept[k]) * odd * fj - fi
+                wdf = wk[k] * df
+                u = uk[k]
+                v = vk[k]
+                b0 += u * wdf
+                b1 += v * wdf
+                b2 += 0.5 * u * u * wdf
+                b3 += u * v * wdf
+                b4 += 0.5 * v * v * wdf
+            out[f, i, 0] = s1 * (i00 * b0 + i10 * b1 + i20 * b2 + i30 * b3 + i40 * b4)
+            out[f, i, 1] = s1 * (i10 * b0 + i11 * b1 + i21 * b2 + i31 * b3 + i41 * b4)
             if n_rows == 5:
-                weights[2, base + k] = c20 * p0 + c21 * p1 + c22 * p2 + c23 * p3 + c24 * p4
-                weights[3, base + k] = c30 * p0 + c31 * p1 + c32 * p2 + c33 * p3 + c34 * p4
-                weights[4, base + k] = c40 * p0 + c41 * p1 + c42 * p2 + c43 * p3 + c44 * p4
+                out[f, i, 2] = s2 * (i20 * b0 + i21 * b1 + i22 * b2 + i32 * b3 + i42 * b4)
+                out[f, i, 3] = s2 * (i30 * b0 + i31 * b1 + i32 * b2 + i33 * b3 + i43 * b4)
+                out[f, i, 4] = s2 * (i40 * b0 + i41 * b1 + i42 * b2 + i43 * b3 + i44 * b4)
     return status
-
-
-@njit(cache=True)
-def derivatives(f, parity, start, nbr, mirrored, count, weights, out):
-    """out[i, :] = (f_x, f_y, f_xx, f_xy, f_yy) at every node, or only the gradient (f_x, f_y)
-    when ``out`` has two columns (all an operator built with two weight rows can give).
-
-    ``parity`` is +1 for a field even in x (density, pressure, v_y), -1 for an odd one (v_x).
-    """
-    full = out.shape[1] == 5
-    for i in range(f.shape[0]):
-        d0 = 0.0
-        d1 = 0.0
-        d2 = 0.0
-        d3 = 0.0
-        d4 = 0.0
-        fi = f[i]
-        for k in range(start[i], start[i] + count[i]):
-            j = nbr[k]
-            fj = parity * f[j] if mirrored[k] else f[j]
-            df = fj - fi
-            d0 += weights[0, k] * df
-            d1 += weights[1, k] * df
-            if full:  # loop-invariant: the compiler splits the loop in two
-                d2 += weights[2, k] * df
-                d3 += weights[3, k] * df
-                d4 += weights[4, k] * df
-        out[i, 0] = d0
-        out[i, 1] = d1
-        if full:
-            out[i, 2] = d2
-            out[i, 3] = d3
-            out[i, 4] = d4
-
-
-@njit(cache=True)
-def derivatives_pair(f, parity_f, g, parity_g, start, nbr, mirrored, count, weights, out_f,
-                     out_g):
-    """``derivatives`` of two fields in one pass over the pairs (each weight is loaded once):
-    out_f[i, :] = D f_i, out_g[i, :] = D g_i, the same sums as two ``derivatives`` calls."""
-    n = f.shape[0]
-    for i in range(n):
-        a0 = a1 = a2 = a3 = a4 = 0.0
-        b0 = b1 = b2 = b3 = b4 = 0.0
-        fi = f[i]
-        gi = g[i]
-        for k in range(start[i], start[i] + count[i]):
-            j = nbr[k]
-            if mirrored[k]:
-                df = parity_f * f[j] - fi
-                dg = parity_g * g[j] - gi
-            else:
-                df = f[j] - fi
-                dg = g[j] - gi
-            w0 = weights[0, k]
-            w1 = weights[1, k]
-            w2 = weights[2, k]
-            w3 = weights[3, k]
-            w4 = weights[4, k]
-            a0 += w0 * df
-            a1 += w1 * df
-            a2 += w2 * df
-            a3 += w3 * df
-            a4 += w4 * df
-            b0 += w0 * dg
-            b1 += w1 * dg
-            b2 += w2 * dg
-            b3 += w3 * dg
-            b4 += w4 * dg
-        out_f[i, 0] = a0
-        out_f[i, 1] = a1
-        out_f[i, 2] = a2
-        out_f[i, 3] = a3
-        out_f[i, 4] = a4
-        out_g[i, 0] = b0
-        out_g[i, 1] = b1
-        out_g[i, 2] = b2
-        out_g[i, 3] = b3
-        out_g[i, 4] = b4
 
 
 @njit(cache=True)
@@ -360,25 +313,6 @@ def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, scale, work
     brookshaw_laplacian(work2, parity, start, nbr, mirrored, count, lap_b, out)
     for i in range(f.shape[0]):
         out[i] *= scale[i]
-
-
-@njit(cache=True)
-def near_nodes(mask, nbr, count):
-    """Indices of the nodes i with mask[i] or with a neighbour j with mask[j]."""
-    n = count.shape[0]
-    out = np.empty(n, np.int64)
-    m = 0
-    for i in range(n):
-        hit = mask[i]
-        if not hit:
-            for k in range(count[i]):
-                if mask[nbr[i, k]]:
-                    hit = True
-                    break
-        if hit:
-            out[m] = i
-            m += 1
-    return out[:m]
 
 
 @njit(cache=True)

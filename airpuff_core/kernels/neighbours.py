@@ -6,8 +6,9 @@ nodes off the axis: the axisymmetric fields are even (density, pressure, v_y) or
 so a mirror image carries the node's value times the field's parity.  This makes the axis an
 interior line for the MFPM operators instead of a one-sided boundary.
 
-Output is a fixed-width table: ``nbr[i, k]`` (neighbour index), ``mirrored[i, k]`` (1 for an
-image), ``count[i]``.  The search is O(n) (counting sort into square cells of side
+Output is a flat table: node i's neighbours are p = start[i] ... start[i + 1] - 1, with
+``nbr[p]`` (neighbour index) and ``mirrored[p]`` (1 for an image), at most ``max_neighbours`` per
+node.  The search is O(n) (counting sort into square cells of side
 kappa * max h).
 """
 
@@ -18,14 +19,13 @@ AXIS_EPS = 1e-12  # m: a node with x below this lies on the axis (its image is i
 
 
 @njit(cache=True)
-def build_neighbours(x, y, h, kappa, nbr, mirrored, count):
+def build_neighbours(x, y, h, kappa, max_neighbours, start, nbr, mirrored):
     """Fill the neighbour table.  Returns 0, i+1 for the first node whose table overflows, or -1
     when a position is not finite (a blown-up state must not index cells out of range)."""
     n = x.shape[0]
     for i in range(n):
         if not (np.isfinite(x[i]) and np.isfinite(y[i])):
             return -1
-    maxn = nbr.shape[1]
     hmax = 0.0
     xmin = x[0]
     xmax = x[0]
@@ -59,7 +59,9 @@ def build_neighbours(x, y, h, kappa, nbr, mirrored, count):
         fill[c] += 1
 
     status = 0
+    p0 = 0
     for i in range(n):
+        start[i] = p0
         k = 0
         for image in range(2):
             if image == 1:
@@ -85,14 +87,15 @@ def build_neighbours(x, y, h, kappa, nbr, mirrored, count):
                         r2 = dx * dx + dy * dy
                         hij = kappa * max(h[i], h[j])
                         if r2 < hij * hij:
-                            if k >= maxn:
+                            if k >= max_neighbours:
                                 if status == 0:
                                     status = i + 1
                                 continue
-                            nbr[i, k] = j
-                            mirrored[i, k] = image
+                            nbr[p0 + k] = j
+                            mirrored[p0 + k] = image
                             k += 1
-        count[i] = k
+        p0 += k
+    start[n] = p0
     return status
 
 
