@@ -136,7 +136,8 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
          nothing;
       2. the scaled moment matrix A = sum_j W_ij P_j P_j^T, P_j = (u, v, u^2/2, u v, v^2/2),
          (u, v) = (x_j - x_i, y_j - y_i) / s_i, s_i = kappa h_i, with the Wendland C2 shape
-         W = (1-q)^4 (4q+1), q = r_ij / H_ij;
+         W = (1-q)^4 (4q+1), q = r_ij / H_ij.  Its 15 entries are 12 distinct monomial sums
+         S_ab = sum_j W_ij u^a v^b;
       3. A^-1 by the written-out LDL^T (``spd_inverse5``), and the 1-norm condition number of A
          into ``cond[i]``;
       4. for each field, b = sum_j W_ij P_j (f_j - f_i) (f_j times the field's ``parity``, +1
@@ -144,11 +145,11 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
          1/s^2, 1/s^2, 1/s^2).
 
     No pair weight is stored: in the solver each operator is applied once, right after its
-    build, so storing weights would only add memory traffic.  The per-node quantities (x, y, h,
-    area) stay in the L1 cache, and only 5 bytes per candidate pair are streamed.  Loops 1 and 2
-    and the field sums run over contiguous scratch arrays without branches, which LLVM vectorises
-    (the fastmath flags allow only reassociation and fused multiply-adds, so NaN and infinity
-    keep their meaning).
+    build, so storing weights would only add memory traffic.  For speed (measured, see
+    docs/performance.md): each node's x, y, h, 1/h are packed side by side, so a neighbour costs
+    one cache line; the support's pairs are copied into contiguous scratch rows, so that the
+    kernel and moment loop vectorises (the fastmath flags allow only reassociation and fused
+    multiply-adds, so NaN and infinity keep their meaning); the scratch rows are one block.
 
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
     b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in
@@ -159,18 +160,26 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     """
     n_fields = fields.shape[0]
     n_rows = out.shape[2]  # 5, or 2 for the gradient only
+    n = x.shape[0]
+    node = np.empty((n, 4))
+    for i in range(n):
+        node[i, 0] = x[i]
+        node[i, 1] = y[i]
+        node[i, 2] = h[i]
+        node[i, 3] = inv_h[i]
     width = 1
     for i in nodes:
         width = max(width, start[i + 1] - start[i])
     # scratch rows in one block: separate small allocations may land 4 KiB apart, where the
-    # loads of one row wait on stores to another (4K aliasing; measured 1.5x slower builds)
-    scratch = np.empty((11, width))
-    dxk, dyk, rk, sk, hk, sign_kept, uk, vk, wk, tk, ik = (
-        scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5], scratch[6],
-        scratch[7], scratch[8], scratch[9], scratch[10])
+    # loads of one row wait on stores to another (4K aliasing)
+    scratch = np.empty((12, width))
+    dx_c, dy_c, r2_c, sign_c, support2_c = (scratch[0], scratch[1], scratch[2], scratch[3],
+                                            scratch[4])  # per candidate
+    u_k, v_k, r2_k, inv_support_k, sign_k, w_k, t3_k = (
+        scratch[5], scratch[6], scratch[7], scratch[8], scratch[9], scratch[10], scratch[11])
     index_scratch = np.empty((2, width), np.uint32)
-    keep = index_scratch[0]
-    jk = index_scratch[1]
+    keep = index_scratch[0]  # candidate slot of the k-th pair inside the support
+    nbr_k = index_scratch[1]
     inv_kappa = 1.0 / kappa
     status = 0
     for i in nodes:
@@ -181,68 +190,81 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
         inv_s = inv_kappa * inv_hi
         p0 = start[i]
         n_cand = start[i + 1] - p0
-        # 1. distances to all candidates (vectorised gathers), then the support's list
-        for k in range(n_cand):
-            p = p0 + k
+        # 1. distances to all candidates, then the support's list, copied contiguous
+        for c in range(n_cand):
+            p = p0 + c
             j = nbr[p]
             sign = 1.0 - 2.0 * mirrored[p]  # x_j's factor: -1 for a mirror image
-            dx = sign * x[j] - xi
-            dy = y[j] - yi
-            H = kappa * max(hi, h[j])
-            dxk[k] = dx
-            dyk[k] = dy
-            sk[k] = sign
-            rk[k] = dx * dx + dy * dy
-            hk[k] = H * H
+            dx = sign * node[j, 0] - xi
+            dy = node[j, 1] - yi
+            H = kappa * max(hi, node[j, 2])
+            dx_c[c] = dx
+            dy_c[c] = dy
+            sign_c[c] = sign
+            r2_c[c] = dx * dx + dy * dy
+            support2_c[c] = H * H
         m = np.uint64(0)  # unsigned: no negative-index wrap-around check on keep[m]
-        for k in range(n_cand):
-            keep[m] = k
-            m += np.uint64(rk[k] < hk[k])
-        # 2. kernel values and the moment matrix (in registers)
-        a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
-        a40 = a41 = a42 = a43 = a44 = 0.0
+        for c in range(n_cand):
+            keep[m] = c
+            m += np.uint64(r2_c[c] < support2_c[c])
         for k in range(m):
             c = keep[k]
             j = nbr[p0 + c]
-            inv_H = inv_kappa * min(inv_hi, inv_h[j])
-            q = np.sqrt(rk[c]) * inv_H
+            nbr_k[k] = j
+            u_k[k] = dx_c[c] * inv_s
+            v_k[k] = dy_c[c] * inv_s
+            r2_k[k] = r2_c[c]
+            inv_support_k[k] = inv_kappa * min(inv_hi, node[j, 3])
+            sign_k[k] = sign_c[c]
+        # 2. kernel values and the moment sums
+        s20 = s11 = s02 = s30 = s21 = s12 = s03 = s40 = s31 = s22 = s13 = s04 = 0.0
+        for k in range(m):
+            q = np.sqrt(r2_k[k]) * inv_support_k[k]
             tq = max(1.0 - q, 0.0)  # rounding may put q at 1 for r just below H: W = 0 there
             t3 = tq * tq * tq
             w = t3 * tq * (4.0 * q + 1.0)
-            u = dxk[c] * inv_s
-            v = dyk[c] * inv_s
-            uk[k] = u
-            vk[k] = v
-            wk[k] = w
-            tk[k] = t3
-            ik[k] = inv_H
-            jk[k] = j
-            sign_kept[k] = sk[c]
-            p2 = 0.5 * u * u
-            p3 = u * v
-            p4 = 0.5 * v * v
-            a00 += w * u * u
-            a10 += w * v * u
-            a11 += w * v * v
-            a20 += w * p2 * u
-            a21 += w * p2 * v
-            a22 += w * p2 * p2
-            a30 += w * p3 * u
-            a31 += w * p3 * v
-            a32 += w * p3 * p2
-            a33 += w * p3 * p3
-            a40 += w * p4 * u
-            a41 += w * p4 * v
-            a42 += w * p4 * p2
-            a43 += w * p4 * p3
-            a44 += w * p4 * p4
+            u = u_k[k]
+            v = v_k[k]
+            w_k[k] = w
+            t3_k[k] = t3
+            wuu = w * u * u
+            wuv = w * u * v
+            wvv = w * v * v
+            s20 += wuu
+            s11 += wuv
+            s02 += wvv
+            s30 += wuu * u
+            s21 += wuu * v
+            s12 += wuv * v
+            s03 += wvv * v
+            s40 += wuu * u * u
+            s31 += wuu * u * v
+            s22 += wuu * v * v
+            s13 += wuv * v * v
+            s04 += wvv * v * v
+        # A's lower triangle in the order P = (u, v, u^2/2, u v, v^2/2)
+        a00 = s20
+        a10 = s11
+        a11 = s02
+        a20 = 0.5 * s30
+        a21 = 0.5 * s21
+        a22 = 0.25 * s40
+        a30 = s21
+        a31 = s12
+        a32 = 0.5 * s31
+        a33 = s22
+        a40 = 0.5 * s12
+        a41 = 0.5 * s03
+        a42 = 0.25 * s22
+        a43 = 0.5 * s13
+        a44 = 0.25 * s04
         if store_laplacian:
             for k in range(m):
-                c = keep[k]
-                ih2 = ik[k] * ik[k]
-                lap_nbr[p0 + k] = jk[k]
-                lap_mirrored[p0 + k] = mirrored[p0 + c]
-                lap_b[p0 + k] = area[jk[k]] * LAPLACIAN_SCALE * ih2 * ih2 * tk[k]
+                j = nbr_k[k]
+                ih2 = inv_support_k[k] * inv_support_k[k]
+                lap_nbr[p0 + k] = j
+                lap_mirrored[p0 + k] = mirrored[p0 + keep[k]]
+                lap_b[p0 + k] = area[j] * LAPLACIAN_SCALE * ih2 * ih2 * t3_k[k]
             lap_count[i] = m
         # 3. inverse and condition number
         (i00, i10, i11, i20, i21, i22, i30, i31, i32, i33,
@@ -268,11 +290,11 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
             b0 = b1 = b2 = b3 = b4 = 0.0
             for k in range(m):
                 # an image of an odd field carries -f_j: (1 - sign) odd f_j is then 2 f_j
-                fj = fields[f, jk[k]]
-                df = fj - (1.0 - sign_kept[k]) * odd * fj - fi
-                wdf = wk[k] * df
-                u = uk[k]
-                v = vk[k]
+                fj = fields[f, nbr_k[k]]
+                df = fj - (1.0 - sign_k[k]) * odd * fj - fi
+                wdf = w_k[k] * df
+                u = u_k[k]
+                v = v_k[k]
                 b0 += u * wdf
                 b1 += v * wdf
                 b2 += 0.5 * u * u * wdf
