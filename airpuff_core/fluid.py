@@ -3,8 +3,9 @@ Laplacian).
 
 ``Operators.derivatives(x, y, fields, parity, out)`` builds every node's MFPM operator at (x, y)
 and applies it to the fields in the same pass; ``Operators.laplacian_args()`` gives the Brookshaw
-pair lists kept by the last full build with ``laplacian=True``.  Arrays are allocated once per run
-and reused, so a time step allocates nothing per particle.
+pair lists kept by the last full build with ``laplacian=True``.  The operators' arrays are
+allocated once per run; a kernel call allocates only its scratch (two arrays of n and of the
+widest candidate list), so nothing is allocated per particle.
 """
 
 from __future__ import annotations
