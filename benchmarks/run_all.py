@@ -1,4 +1,4 @@
-"""`make bench`: every benchmark figure of docs/performance.md, printed (about 5 minutes).
+"""`make bench`: every benchmark figure of docs/performance.md, printed (about 8 minutes).
 
     python benchmarks/run_all.py            # all
     python benchmarks/run_all.py --quick    # skip the paper-resolution runs and the sweep
