@@ -236,9 +236,8 @@ class CoupledModel:
         w["vx_new"][:] = 0.0
         w["vy_new"][:] = 0.0
         advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p[0], self.dv[0],
-                         self.dv[1],
-                         w["rho_half"], self.rho, si["mu"], dt, w["hv_vx"], w["hv_vy"],
-                         w["vx_new"], w["vy_new"])
+                         self.dv[1], w["rho_half"], self.rho, si["mu"], dt, w["hv_vx"],
+                         w["hv_vy"], w["vx_new"], w["vy_new"])
         drift(w["x_half"], w["y_half"], w["vx_new"], w["vy_new"], 0.5 * dt, w["x_new"], w["y_new"])
 
         # 2. Dirichlet-Neumann iterations
