@@ -113,6 +113,15 @@ class Operators:
         keeps the Brookshaw pair lists for ``laplacian_args``.  The neighbour table is updated
         first.  An ill-conditioned or singular moment matrix raises ``SimulationError``.
         """
+        n = self.h.shape[0]
+        n_fields = fields.shape[0]
+        # the kernel does not check bounds: a wrong shape would read or write out of range
+        if (fields.ndim != 2 or fields.shape[1] != n or parity.shape != (n_fields,)
+                or out.ndim != 3 or out.shape[:2] != (n_fields, n) or out.shape[2] not in (2, 5)
+                or x.shape != (n,) or y.shape != (n,)):
+            raise ValueError(f"shapes: x, y ({n},), fields (n_fields, {n}), parity (n_fields,), "
+                             f"out (n_fields, {n}, 2 or 5); got x {x.shape}, y {y.shape}, fields "
+                             f"{fields.shape}, parity {parity.shape}, out {out.shape}")
         t = self.table
         t.update(x, y, time_ms)
         if nodes is None:

@@ -198,3 +198,16 @@ def test_fast_operators_equal_their_definition_on_a_smooth_field():
         sub = derivative_vector(ops, x, y, f, parity[k], nodes=cornea)
         assert np.array_equal(sub[cornea], both[k][cornea])
         assert np.isnan(np.delete(sub, cornea, axis=0)).all()  # no other row is written
+
+
+def test_operator_shapes_are_checked():
+    """The kernel does not check bounds, so its wrapper refuses arrays of the wrong shape."""
+    ch = build_chamber("sector", "isotropic", "coarse", R, RP, A0)
+    ops = Operators(ch.h, ch.area, KAPPA)
+    fields = np.zeros((2, ch.n))
+    with pytest.raises(ValueError, match="shapes"):
+        ops.derivatives(ch.x, ch.y, fields, np.ones(2), np.zeros((2, ch.n, 3)))
+    with pytest.raises(ValueError, match="shapes"):
+        ops.derivatives(ch.x, ch.y, fields[:, :-1], np.ones(2), np.zeros((2, ch.n, 5)))
+    with pytest.raises(ValueError, match="shapes"):
+        ops.derivatives(ch.x, ch.y, fields, np.ones(1), np.zeros((2, ch.n, 5)))
