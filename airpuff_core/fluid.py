@@ -82,11 +82,18 @@ class Operators:
     ``laplacian=True``, on a shared neighbour table."""
 
     def __init__(self, h, area, kappa, table: NeighbourTable | None = None):
+        """h: node spacing [m], area: node area in the meridian plane [m^2], kappa: support
+        radius / spacing; ``table``: a neighbour table to share (searched with the same h and
+        kappa, which the operators then take from it)."""
+        if table is None:
+            table = NeighbourTable(h, kappa)
+        elif table.kappa != kappa or table.h.shape != h.shape or not np.array_equal(table.h, h):
+            raise ValueError("the shared neighbour table was made for another h or kappa")
         n = h.shape[0]
-        self.h = h
+        self.table = table
+        self.h = table.h
+        self.kappa = table.kappa
         self.area = area
-        self.kappa = kappa
-        self.table = table if table is not None else NeighbourTable(h, kappa)
         self.inv_h = 1.0 / h
         # the Brookshaw pair lists: node i owns pairs start[i] ... start[i] + count[i] - 1 (the
         # support's pairs, in the table's order).  Sized for the fullest table; only the pages in

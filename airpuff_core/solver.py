@@ -298,7 +298,6 @@ class CoupledModel:
         vmax = max_speed(self.vx, self.vy)
         self.v_prev = vmax
         self.v_running = max(self.v_running, vmax)
-        self.p_interface = np.empty(cornea.shape[0])
         tait_pressure_at(cornea, self.rho, rho0, p0, c, gam, self.p_interface)
         if not math.isfinite(vmax) or vmax > BLOWUP_SPEED:
             raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: max speed "

@@ -362,8 +362,7 @@ def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, ou
 
 @njit(cache=True)
 def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, mirrored, count,
-                                 lap_b,
-                                 scale, dt, n_sub, work, out_rho, out_vx, out_vy):
+                                 lap_b, scale, dt, n_sub, work, out_rho, out_vx, out_vy):
     """Change of rho, v_x and v_y over dt under d f/dt = scale L^3 f, by n_sub explicit Euler
     sub-steps: out_f = g(dt) - f with g(0) = f.
 
