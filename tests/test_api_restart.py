@@ -21,8 +21,10 @@ except ImportError:
     from test_api_support import ServerProcess, wait_job
     from test_api_jobs import check_against_files, file_ids
 
+# points of about 0.5 s each: long enough that the points still to run when the server is
+# stopped cannot all finish during its shutdown (at 1 ms the job once finished there)
 BODY = {"E0": [0.3, 0.45, 0.6], "IOP": [12.0, 20.0], "thickness": [0.5], "pmax": [10.0],
-        "resolution": "coarse", "t_end": 1.0}
+        "resolution": "coarse", "t_end": 8.0}
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
