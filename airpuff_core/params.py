@@ -15,12 +15,14 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 MMHG_PA = 133.322  # Pa per mmHg
+UL_M3 = 1e-9  # m^3 per microlitre
 
 RESOLUTIONS = ("coarse", "paper", "fine")
 GEOMETRIES = ("sector", "cap")
 LAYOUTS = ("isotropic", "polar")
 C_RULES = ("running_max", "per_step", "fixed")
 JET_START = ("as_written", "equilibrium")
+GLOBES = ("rigid", "compliant")
 
 
 class ParameterError(ValueError):
@@ -105,6 +107,9 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
         _p("cfl", "1", 0.6, 0.0, 0.6,
            "acoustic CFL number: dt = cfl * h_min / (c + v_max) (stable to 0.72 at rest)"),
+        _p("ocular_rigidity", "1/uL", 0.0126, 0.0, 0.1,
+           "Friedenwald's ocular rigidity K of the compliant globe, dP/dV = ln(10) K P "
+           "(globe=compliant; in-vivo mean 0.0126, Pallikaris et al. 2005)"),
     ]
 }
 
@@ -114,6 +119,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "layout": LAYOUTS,
     "c_rule": C_RULES,
     "jet_start": JET_START,
+    "globe": GLOBES,
 }
 CHOICE_DEFAULTS = {
     "resolution": "coarse",
@@ -121,6 +127,7 @@ CHOICE_DEFAULTS = {
     "layout": "isotropic",
     "c_rule": "running_max",
     "jet_start": "as_written",
+    "globe": "rigid",
 }
 CHOICE_DESCRIPTIONS = {
     "resolution": "node count: coarse (~300 fluid nodes), paper (~1100), fine (~4500)",
@@ -128,6 +135,8 @@ CHOICE_DESCRIPTIONS = {
     "layout": "fluid node layout: isotropic rings or the paper's polar lattice",
     "c_rule": "sound-speed rule: running_max of v_max, per_step (paper), or fixed c = c0",
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
+    "globe": "rigid chamber walls (paper) or compliant: the walls recede with Friedenwald's "
+             "pressure-volume law (ocular_rigidity)",
 }
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")
@@ -173,11 +182,13 @@ class RunParams:
     hyperviscosity: float = PARAMETERS["hyperviscosity"].default
     output_interval: float = PARAMETERS["output_interval"].default
     cfl: float = PARAMETERS["cfl"].default
+    ocular_rigidity: float = PARAMETERS["ocular_rigidity"].default
     resolution: str = CHOICE_DEFAULTS["resolution"]
     geometry: str = CHOICE_DEFAULTS["geometry"]
     layout: str = CHOICE_DEFAULTS["layout"]
     c_rule: str = CHOICE_DEFAULTS["c_rule"]
     jet_start: str = CHOICE_DEFAULTS["jet_start"]
+    globe: str = CHOICE_DEFAULTS["globe"]
     max_coupling_iterations: int = INT_PARAMETERS["max_coupling_iterations"][0]
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
@@ -253,6 +264,7 @@ class RunParams:
             "hyperviscosity": self.hyperviscosity,
             "output_interval": self.output_interval * 1e-3,
             "cfl": self.cfl,
+            "ocular_rigidity": self.ocular_rigidity / UL_M3,
         }
 
 

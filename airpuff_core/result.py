@@ -38,6 +38,10 @@ HISTORIES: dict[str, tuple[str, str]] = {
     "jet_pressure_apex": ("mmHg", "air-jet pressure at the apex"),
     "fluid_pressure_apex": ("mmHg", "fluid pressure at the apex"),
     "chamber_volume": ("mm^3", "volume of the anterior chamber"),
+    "wall_volume_change": ("mm^3", "volume by which the compliant walls have given way "
+                           "(0 with globe=rigid)"),
+    "globe_pressure": ("mmHg", "pressure of the globe's pressure-volume law for the volume the "
+                       "cornea has pushed in (the IOP with globe=rigid)"),
     "coupling_iterations": ("1", "Dirichlet-Neumann iterations in the last solver step"),
     "sound_speed": ("m/s", "artificial sound speed c"),
 }

@@ -28,12 +28,13 @@ import numpy as np
 from .errors import SimulationError
 from .fluid import NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
+from .globe import CompliantWall, enclosed_volume_rate
 from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocity,
                             axisymmetric_divergence, drift, impose_cornea,
                             interface_pressure_change, max_density_deviation, max_speed,
                             tait_pressure, tait_pressure_at)
 from .kernels.mfpm import hyperviscous_flow_increments
-from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
+from .kernels.membrane import advance_membrane, air_jet, cornea_polygon_volume, max_wave_speed
 from .membrane import (apex_curvature, apex_fit_nodes, build_membrane, jet_pressure,
                        static_equilibrium)
 from .metrics import compute_metrics
@@ -101,6 +102,18 @@ class CoupledModel:
         self.x[ch.cornea] = X
         self.y[ch.cornea] = Y
         self.apex_y0 = Y[0]
+        # the closing point of the polygon whose volume the cornea encloses (globe.py)
+        self.volume_axis_y = 0.0 if params.geometry == "sector" else float(Y[-1])
+        self.cornea_volume0 = cornea_polygon_volume(X, Y, self.volume_axis_y)
+        self.wall = None
+        if params.globe == "compliant":
+            x_l = si["R"] * math.sin(si["alpha0"])
+            x_c = si["r_post"] * math.sin(si["alpha0"]) if params.geometry == "sector" else 0.0
+            self.wall = CompliantWall(ch.x, ch.y, np.flatnonzero(ch.kind == WALL), x_c, x_l,
+                                      si["ocular_rigidity"], si["p0"], si["rho_f"],
+                                      si["rho_f"] * ch.volume, si["gamma"])
+        if self.wall is not None:
+            self.wall.volume_offset = self.density_volume() - self.chamber_volume()
         self.n_apex_fit = apex_fit_nodes(X)
         self.t = 0.0
         self.v_prev = 0.0
@@ -256,6 +269,8 @@ class CoupledModel:
                              mem.nu, mem.k, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
                              mF["Fx"], mF["Fy"], mF["q"])
             impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
+            if self.wall is not None:
+                wall_state = self._impose_wall(X, Y, VX, VY, c, w)
             # only the cornea's density enters the coupling: the operators of the cornea nodes
             # suffice (every node, with reuse=False), the full field follows convergence
             self._velocity_derivatives(ops_new, w["x_new"], w["y_new"], w["vx_new"],
@@ -295,6 +310,9 @@ class CoupledModel:
         self.dv, self._dv_new = self._dv_new, self.dv
         self.ops_n, self.ops_new = ops_new, ops_n
         self.t += dt
+        if self.wall is not None:
+            self.wall.displacement = wall_state[0]  # so that chamber_volume() sees the new wall
+            self.wall.commit(wall_state, self.density_volume(), self.chamber_volume(), dt, c)
         vmax = max_speed(self.vx, self.vy)
         self.v_prev = vmax
         self.v_running = max(self.v_running, vmax)
@@ -308,13 +326,27 @@ class CoupledModel:
                                   f"by {dev:.3g} from the reference", self.t * 1e3, "blow-up")
         return dt
 
+    def _impose_wall(self, X, Y, VX, VY, c, w):
+        """Move the compliant walls to where the globe's law puts them for the cornea state
+        (X, Y, VX, VY) at t^{n+1} (globe.py); returns (displacement, speed, globe pressure)."""
+        volume_change = cornea_polygon_volume(X, Y, self.volume_axis_y) - self.cornea_volume0
+        volume_rate = enclosed_volume_rate(X, Y, VX, VY, self.volume_axis_y)
+        state = self.wall.wall_state(volume_change, volume_rate, c, self.dt)
+        self.wall.impose(state[0], state[1], w["y_new"], w["vx_new"], w["vy_new"])
+        return state
+
     # ---------------------------------------------------------------------------------------
     def apex_curvature(self):
         return apex_curvature(self.X, self.Y, self.n_apex_fit)
 
+    def wall_volume_change(self):
+        """Volume [m^3] the compliant walls have given way by (0 for a rigid globe)."""
+        return 0.0 if self.wall is None else self.wall.area * self.wall.displacement
+
     def chamber_volume(self):
         si = self.si
-        return chamber_volume(self.params.geometry, self.X, self.Y, si["r_post"], si["alpha0"])
+        return (chamber_volume(self.params.geometry, self.X, self.Y, si["r_post"], si["alpha0"])
+                + self.wall_volume_change())
 
     def density_volume(self):
         """Chamber volume implied by the density field, sum m_j / rho_j [m^3]."""
@@ -330,6 +362,9 @@ class CoupledModel:
             "jet_pressure_apex": air_jet(self.t, 0.0, *self.jet) / MMHG_PA,
             "fluid_pressure_apex": self.p_interface[0] / MMHG_PA,
             "chamber_volume": self.chamber_volume() * 1e9,
+            "wall_volume_change": self.wall_volume_change() * 1e9,
+            "globe_pressure": (self.si["p0"] if self.wall is None
+                               else self.wall.pressure) / MMHG_PA,
             "coupling_iterations": float(self.last_iterations),
             "sound_speed": self.c,
         }
