@@ -21,6 +21,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "CH": ("mmHg", "corneal hysteresis P1 - P2"),
     "IOPg": ("mmHg", "Goldmann-equivalent IOP 0.5 (P1 + P2)"),
     "IOPcc": ("mmHg", "corneal-compensated IOP P1 - 0.43 P2 (paper's definition)"),
+    "CRF": ("mmHg", "corneal resistance factor P1 - 0.7 P2 (ORA, Luce 2006)"),
+    "IOPcc_ora": ("mmHg", "corneal-compensated IOP P2 - 0.43 P1 (ORA, Luce 2006)"),
     "t_A1": ("ms", "time of the first applanation"),
     "t_A2": ("ms", "time of the second applanation"),
     "t_HC": ("ms", "time of highest concavity (maximum apex displacement)"),
