@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from airpuff_core.kernels.viscoelastic import (prony_step_factors, relax_resultant,
-                                               relax_resultants, relaxation_function)
+from airpuff_core.kernels.viscoelastic import (prony_step_factors, relax_in_place,
+                                               relax_resultant, relaxation_function)
 
 
 def run_history(times, s_eq, g, tau):
@@ -79,13 +79,16 @@ def test_zero_g_recovers_the_elastic_law_exactly():
     decay, weight = np.empty(1), np.empty(1)
     prony_step_factors(1e-6, g, tau, decay, weight)
     q = np.zeros((1, n))
-    out = np.empty(n)
-    relax_resultants(old, new, decay, weight, q, out)
-    assert np.array_equal(out, new)
+    values = new.copy()
+    relax_in_place(values, old.copy(), decay, weight, q, True)
+    assert np.array_equal(values, new)
     assert not np.any(q)
 
 
-def test_array_update_matches_the_scalar_update():
+def test_in_place_update_matches_the_scalar_update():
+    """One step in place: the totals and overstresses of the scalar update, and ``previous``
+    becomes the new equilibrium values; without ``advance`` the stored overstresses are only
+    added."""
     rng = np.random.default_rng(5)
     g, tau = np.array([0.2, 0.3]), np.array([2e-3, 20e-3])
     decay, weight = np.empty(2), np.empty(2)
@@ -93,12 +96,17 @@ def test_array_update_matches_the_scalar_update():
     old, new = rng.normal(size=6), rng.normal(size=6)
     q = rng.normal(size=(2, 6))
     q_ref = q.copy()
-    out = np.empty(6)
-    relax_resultants(old, new, decay, weight, q, out)
+    values, previous = new.copy(), old.copy()
+    relax_in_place(values, previous, decay, weight, q, True)
+    np.testing.assert_array_equal(previous, new)
     for k in range(6):
         col = q_ref[:, k].copy()
-        assert out[k] == relax_resultant(old[k], new[k], decay, weight, col)
+        assert values[k] == relax_resultant(old[k], new[k], decay, weight, col)
         np.testing.assert_array_equal(col, q[:, k])
+    held = new.copy()
+    relax_in_place(held, previous, decay, weight, q, False)
+    np.testing.assert_allclose(held, new + q.sum(axis=0), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(previous, new)
 
 
 def test_cycle_dissipates():

@@ -65,11 +65,23 @@ def relax_resultant(s_eq_old, s_eq_new, decay, weight, overstress):
 
 
 @njit(cache=True)
-def relax_resultants(s_eq_old, s_eq_new, decay, weight, overstress, out):
-    """``relax_resultant`` for arrays of resultants: overstress has shape (terms, n); out[k] is
-    the total resultant of item k (out may be s_eq_new itself)."""
-    for k in range(s_eq_new.shape[0]):
-        out[k] = relax_resultant(s_eq_old[k], s_eq_new[k], decay, weight, overstress[:, k])
+def relax_in_place(values, previous, decay, weight, overstress, advance):
+    """Turn the equilibrium-law resultants ``values`` into total resultants, in place.
+
+    advance: one Simo step from ``previous`` (the equilibrium resultants at the start of the
+    step, then set to ``values``' equilibrium values) with the factors decay, weight; otherwise
+    the stored overstresses are only added (the state at the start of a step).  overstress has
+    shape (terms, n)."""
+    for k in range(values.shape[0]):
+        s_new = values[k]
+        if advance:
+            values[k] = relax_resultant(previous[k], s_new, decay, weight, overstress[:, k])
+            previous[k] = s_new
+        else:
+            total = s_new
+            for i in range(decay.shape[0]):
+                total += overstress[i, k]
+            values[k] = total
 
 
 def relaxation_function(t, g, tau):
