@@ -79,7 +79,7 @@ def test_slow_injection_follows_friedenwald(c0):
     params = _slow_push(c0)
     model = CoupledModel(params)
     K = params.ocular_rigidity
-    p0 = model.si["p0"]
+    p0 = model.si.p0_Pa
     checked = 0
     while model.t < params.t_end * 1e-3 - 1e-12:
         model.step(t_stop=params.t_end * 1e-3)
