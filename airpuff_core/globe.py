@@ -44,7 +44,7 @@ import numpy as np
 LN10 = math.log(10.0)
 # s: time in which the wall makes up the fluid's volume drift (CompliantWall.commit); short
 # against the puff (~20 ms), long against a solver step (~5 us)
-DRIFT_RELAXATION_TIME = 0.5e-3
+DRIFT_RELAXATION_TIME = 0.1e-3
 
 
 def friedenwald_pressure(P0, rigidity_per_m3, dV):

@@ -103,3 +103,14 @@ def test_rest_with_compliant_globe_stays_still():
     result = simulate(params)
     assert np.max(np.abs(result.histories["apex_displacement"])) < 1e-9  # mm
     assert np.max(np.abs(result.histories["wall_volume_change"])) < 1e-9  # uL
+
+
+def test_doubling_the_sound_speed_barely_moves_p1_p2():
+    """With the compliant globe the chamber's stiffness is the globe's: doubling the artificial
+    sound speed (c0 and c_slope of the running-maximum rule) moves P1 and P2 by less than
+    0.2 mmHg at coarse resolution.  (A rigid chamber's stiffness is rho c^2 / V: there they move
+    by 0.37 and 0.42 mmHg; docs/model.md, section 11.)"""
+    base = simulate(RunParams(globe="compliant")).metrics
+    fast = simulate(RunParams(globe="compliant", c0=20.0, c_slope=40.0)).metrics
+    assert abs(fast["P1"] - base["P1"]) < 0.2
+    assert abs(fast["P2"] - base["P2"]) < 0.2
