@@ -31,19 +31,6 @@ from .kernels.energy import (compression_energy, fluid_dissipation_power, kineti
 
 UJ = 1e-6  # J per microjoule
 
-# history name -> long name (unit uJ); the budget's terms, cumulative from t = 0
-BUDGET_HISTORIES = {
-    "jet_work": "work of the air jet on the cornea",
-    "kinetic_energy": "kinetic energy of cornea and fluid, change since t = 0",
-    "elastic_energy": "stored energy (cornea strain and viscoelastic overstress, fluid "
-                      "compression), change since t = 0",
-    "tissue_dissipation": "energy dissipated by the cornea's viscoelasticity",
-    "fluid_dissipation": "energy removed by the fluid's viscosity and hyperviscosity",
-    "globe_work": "work of the fluid on the compliant walls (0 with globe=rigid)",
-    "energy_residual": "jet work minus all the terms above (and minus the energy added by sound "
-                       "speed changes): the discretisation's share",
-}
-
 
 class EnergyBudget:
     """Cumulative budget of one run; ``account_step`` after the coupling of every step (with the
@@ -110,7 +97,8 @@ class EnergyBudget:
                 - compression_energy(self.mass, rho_n, self.rho0, self.p0, c_old, self.gamma))
 
     def terms(self, X, Y, VX, VY, vx, vy, rho, c, history):
-        """The budget's terms at the current state [uJ] (``BUDGET_HISTORIES``)."""
+        """The budget's terms at the current state [uJ] (histories of the same names,
+        ``result.HISTORIES``)."""
         kinetic, elastic, ve_stored = self._stored(X, Y, VX, VY, vx, vy, rho, c, history)
         k0, e0, v0 = self._reference
         d_kinetic = kinetic - k0

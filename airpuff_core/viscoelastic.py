@@ -5,10 +5,13 @@ recursion; this module holds their state through a run and measures their energy
 (``energy.py``).  E0 is the equilibrium modulus (docs/model.md, "Viscoelasticity"): the cornea
 starts fully relaxed, with no overstress, and its rest state is the elastic model's.
 
-State (rows: N1, N2 per segment in the first n - 1 entries; M_s, M_theta per node):
+State at t^n (rows: N1, N2 per segment in the first n - 1 entries; M_s, M_theta per node):
 
 - ``previous`` (4, n): the equilibrium-law resultants of the last evaluation;
-- ``overstress`` (terms, 4, n): q_i, zero at rest.
+- ``overstress`` (terms, 4, n): q_i, zero at rest;
+
+and a trial copy that the coupling iterations advance from it (``begin_trial``) and that
+becomes the state at t^{n+1} when the step is accepted (``commit``).
 
 The stored energy of the overstresses, for a law linear about the rest state with tangent C, is
 Psi = sum_i G_inf / (2 g_i) q_i . C^-1 q_i (the free energy of the Maxwell branches of the
@@ -22,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kernels.shell import shell_resultants, shell_strains, shell_work, work_rows
+from .kernels.viscoelastic import prony_step_factors
 
 
 class ViscoelasticHistory:
@@ -46,6 +50,7 @@ class ViscoelasticHistory:
         self.previous[2] = Ms
         self.previous[3] = Mt
         self._membrane_compliance = self._rest_compliance(E1, E2)
+        self._trial = (np.empty_like(self.previous), np.empty_like(self.overstress))
 
     def _strains_and_resultants(self, X, Y, work=None):
         m = self.model
@@ -70,12 +75,27 @@ class ViscoelasticHistory:
         det = t11 * t22 - t12 * t12
         return t22 / det, -t12 / det, t11 / det
 
-    def new_state(self):
-        """Arrays for a trial history (previous, overstress), as ``state()`` returns them."""
-        return np.empty_like(self.previous), np.empty_like(self.overstress)
+    def set_substep(self, h):
+        """The factors of Simo's update for Verlet sub-steps of h [s]."""
+        prony_step_factors(h, self.g, self.tau, self.decay, self.weight)
 
-    def state(self):
-        return self.previous, self.overstress
+    def begin_trial(self):
+        """A fresh trial history from the state at t^n: the arguments (previous, overstress,
+        decay, weight) of the shell kernels, which advance it in place."""
+        previous, overstress = self._trial
+        previous[:] = self.previous
+        overstress[:] = self.overstress
+        return previous, overstress, self.decay, self.weight
+
+    @property
+    def trial_overstress(self):
+        return self._trial[1]
+
+    def commit(self):
+        """The trial history becomes the state (buffers swapped, not copied)."""
+        committed = (self.previous, self.overstress)
+        self.previous, self.overstress = self._trial
+        self._trial = committed
 
     def stored_energy(self, overstress):
         """Psi [J] of the overstresses (module docstring)."""
