@@ -139,8 +139,7 @@ class CoupledModel:
         self.last_residual = 0.0
         self.last_substeps = 0
         self.last_hv_substeps = 0
-        self.dt = 0.0
-        self.dt_limits = {}
+        self.dt_hyperviscous = math.inf  # s, stability limit of the hyperviscosity (time_step)
         self.max_cond = float(self.ops_n.cond.max())
 
     def _start_cornea_at_rest(self):
@@ -181,12 +180,12 @@ class CoupledModel:
     # -- time step --------------------------------------------------------------------------
     def time_step(self):
         """dt [s] from the acoustic CFL condition; also refreshes the hyperviscosity's stability
-        limit (``dt_limits``), which the predictor meets by sub-cycling."""
+        limit ``dt_hyperviscous``, which the predictor meets by sub-cycling."""
         si = self.si
         vmax = max_speed(self.vx, self.vy)
-        dt_ac = si.cfl * self.h_min / (self.c + vmax)
-        self.dt_limits = {"acoustic": dt_ac, "hyperviscosity": self._hyperviscous_limit()}
-        return dt_ac
+        dt_acoustic = si.cfl * self.h_min / (self.c + vmax)
+        self.dt_hyperviscous = self._hyperviscous_limit()
+        return dt_acoustic
 
     def _hyperviscous_limit(self):
         """Largest stable forward-Euler step [s] of the hyperviscosity gamma c h^5 L^3."""
@@ -230,7 +229,6 @@ class CoupledModel:
             dt = dt_stable
         if t_stop is not None and self.t + dt > t_stop:
             dt = max(t_stop - self.t, 1e-12)
-        self.dt = dt
         self.predict_fluid(dt)
         self.couple(dt)
         self.commit(dt)
@@ -267,7 +265,7 @@ class CoupledModel:
             w["hv_vy"][:] = 0.0
             return
         scale = gamma * self.c * self.hv_scale_unit
-        n_hv = max(1, int(math.ceil(dt / self.dt_limits["hyperviscosity"])))
+        n_hv = max(1, int(math.ceil(dt / self.dt_hyperviscous)))
         self.last_hv_substeps = n_hv
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
                                      *self.ops_n.laplacian_args(), scale, dt, n_hv,

@@ -154,14 +154,16 @@ def softest_E0(IOP, thickness, R, nu, fung_k):
 
     The equibiaxial tension of the Fung law (docs/model.md section 3) at lambda0 is
     N = E0 h / (1 - nu^2) exp(Q) (1 + nu) E,  E = (lambda0^2 - 1) / 2,  Q = 2 k (1 + nu) E^2,
-    and Laplace's law asks N = p0 R / 2.  N is linear in E0, and exp(Q) is taken in logarithms
-    (it overflows for the default k at lambda0 = 10).
+    and Laplace's law asks N = p0 R / 2.  N is linear in E0.  Everything is taken in logarithms:
+    exp(Q) overflows for the default k at lambda0 = 10, and a product of tiny accepted values
+    (a thickness of 1e-320 mm) underflows.  Returns inf when no finite E0 will do.
     """
     E = 0.5 * (PRESTRETCH_MAX ** 2 - 1.0)
-    log_N_per_E0 = (math.log(thickness * 1e-3 / (1.0 - nu * nu) * (1.0 + nu) * E)
-                    + 2.0 * fung_k * (1.0 + nu) * E * E)
-    log_E0_Pa = math.log(0.5 * IOP * MMHG_PA * R * 1e-3) - log_N_per_E0
-    return math.exp(log_E0_Pa) * 1e-6 if log_E0_Pa < 700.0 else math.inf
+    log_N_per_E0_Pa = (math.log(thickness) + math.log(1e-3) - math.log(1.0 - nu * nu)
+                       + math.log(1.0 + nu) + math.log(E) + 2.0 * fung_k * (1.0 + nu) * E * E)
+    log_target = math.log(0.5 * MMHG_PA * 1e-3) + math.log(IOP) + math.log(R)
+    log_E0_MPa = log_target - log_N_per_E0_Pa + math.log(1e-6)
+    return math.exp(log_E0_MPa) if log_E0_MPa < 700.0 else math.inf
 
 
 @dataclass(frozen=True)
@@ -276,19 +278,33 @@ class RunParams:
             if isinstance(v, bool) or iv != v or not (lo <= iv <= hi):
                 raise ParameterError(name, v, f"an integer in [{lo}, {hi}]")
             object.__setattr__(self, name, iv)
+        self._check_combinations()
+
+    def _check_combinations(self) -> None:
+        """Values each in range that do not go together (docs/model.md section 1)."""
         if self.geometry == "sector" and not self.r_post < self.R:
             raise ParameterError("r_post", self.r_post, f"a number in (0.5, R={self.R:g}) mm")
         if self.layout == "polar" and self.geometry != "sector":
             raise ParameterError("layout", self.layout,
                                  "isotropic with geometry cap (the polar lattice is a sector's)")
+        if not self.E0 * 1e6 * self.thickness * 1e-3 > 0.0:
+            # the membrane stiffness E0 h [N/m] of the solver would underflow to 0
+            raise ParameterError("thickness", self.thickness,
+                                 f"a number in (0, 2] mm with E0 h > 0 in double precision "
+                                 f"(E0={self.E0:g} MPa)")
         E0_min = softest_E0(self.IOP, self.thickness, self.R, self.nu, self.fung_k)
         if self.E0 < E0_min:
-            raise ParameterError(
-                "E0", self.E0,
-                f"a number of at least {E0_min:.3g} MPa with IOP={self.IOP:g} mmHg, "
-                f"thickness={self.thickness:g} mm, R={self.R:g} mm, nu={self.nu:g}, "
-                f"fung_k={self.fung_k:g} (a softer cornea needs a prestretch above "
-                f"{PRESTRETCH_MAX:g} to carry the IOP)")
+            spec = PARAMETERS["E0"]
+            others = (f"IOP={self.IOP:g} mmHg, thickness={self.thickness:g} mm, R={self.R:g} mm, "
+                      f"nu={self.nu:g}, fung_k={self.fung_k:g}")
+            if E0_min > spec.high:
+                accepted = (f"none in (0, {spec.high:g}] MPa with {others}: the membrane cannot "
+                            f"carry the IOP with a prestretch up to {PRESTRETCH_MAX:g} (raise "
+                            f"thickness or fung_k)")
+            else:
+                accepted = (f"a number of at least {E0_min:.3g} MPa with {others} (a softer cornea "
+                            f"needs a prestretch above {PRESTRETCH_MAX:g} to carry the IOP)")
+            raise ParameterError("E0", self.E0, accepted)
 
     # -- conversions ------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:

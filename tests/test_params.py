@@ -39,6 +39,17 @@ def test_a_cornea_too_soft_to_carry_the_iop_is_a_parameter_error():
     assert lam == pytest.approx(math.sqrt(1 + 2 * E_max / 1.01), rel=1e-9)
 
 
+@pytest.mark.parametrize("values, name", [
+    ({"thickness": 5e-324, "fung_k": 0.0}, "E0"),  # no E0 in range will do
+    ({"thickness": 1e-300, "E0": 1e-300}, "thickness"),  # E0 h underflows to 0 in SI
+])
+def test_extreme_values_in_range_are_parameter_errors(values, name):
+    """Values at the edge of double precision give a ParameterError, never an arithmetic one."""
+    with pytest.raises(ParameterError) as err:
+        RunParams(**values)
+    assert err.value.name == name
+
+
 def test_the_polar_lattice_needs_the_sector():
     with pytest.raises(ParameterError) as err:
         RunParams(geometry="cap", layout="polar")
