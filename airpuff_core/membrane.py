@@ -46,6 +46,11 @@ def prestretch(p0, R, Ebar, nu, k):
     return 0.5 * (lo + hi)
 
 
+# Verlet sub-step <= MEMBRANE_SAFETY * 2 / omega_max (= MEMBRANE_SAFETY * min chord / wave speed for
+# the membrane, whose highest frequency is 2 c / L_min); the Verlet limit is 2 / omega_max
+MEMBRANE_SAFETY = 0.4
+
+
 @dataclass
 class MembraneModel:
     """Discrete membrane: reference geometry, lumped masses and material constants (SI)."""
@@ -62,9 +67,17 @@ class MembraneModel:
     k: float
     rho_h: float  # mass per reference area [kg/m^2]
 
+    stencil = 1  # the force on a node depends on the nodes up to this many away
+
     @property
     def n(self):
         return self.phi.shape[0]
+
+    @property
+    def length_scale(self):
+        """A length of the reference [m] (the radius R_ref, or the meridian's length when it is
+        not an arc), the scale of the finite-difference steps of ``static_equilibrium``."""
+        return self.R_ref if math.isfinite(self.R_ref) else float(self.L0.sum())
 
     def forces(self, X, Y, q):
         """Total nodal forces [N] at positions (X, Y) under net inside pressure q [Pa]."""
@@ -117,8 +130,10 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
     node = np.concatenate(([0], np.repeat(np.arange(1, n - 1), 2)))
     is_x = np.concatenate(([False], np.tile([True, False], n - 2)))
     ix, iy = node[is_x], node[~is_x]
-    # rows touched by each unknown: the force components of its node and of the two neighbours
-    rows_of_node = {i: np.flatnonzero(np.abs(node - i) <= 1) for i in range(n - 1)}
+    # rows touched by each unknown: the force components of the nodes within the stencil
+    reach = model.stencil
+    colours = 2 * reach + 1
+    rows_of_node = {i: np.flatnonzero(np.abs(node - i) <= reach) for i in range(n - 1)}
 
     def residual(Xc, Yc):
         Fx, Fy = model.forces(Xc, Yc, q)
@@ -128,7 +143,7 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
         return r
 
     scale = np.max(np.abs(q)) * np.max(model.A0) + 1e-300
-    eps = 1e-9 * model.R_ref
+    eps = 1e-9 * model.length_scale
     res = residual(X, Y)
     rel = float(np.max(np.abs(res)) / scale)
     best = (rel, X.copy(), Y.copy())
@@ -137,8 +152,8 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
             break
         J = np.zeros((node.size, node.size))
         for coord in (True, False):
-            for colour in range(3):
-                cols = np.flatnonzero((is_x == coord) & (node % 3 == colour))
+            for colour in range(colours):
+                cols = np.flatnonzero((is_x == coord) & (node % colours == colour))
                 if cols.size == 0:
                     continue
                 step = np.zeros(n)
@@ -147,7 +162,7 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
                     diff = residual(X + step, Y) - residual(X - step, Y)
                 else:
                     diff = residual(X, Y + step) - residual(X, Y - step)
-                for col in cols:  # rows of nodes three apart do not overlap (see above)
+                for col in cols:  # rows of nodes `colours` apart do not overlap (see above)
                     rows = rows_of_node[node[col]]
                     J[rows, col] = diff[rows] / (2 * eps)
         delta = np.linalg.solve(J, -res)

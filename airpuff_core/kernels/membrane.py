@@ -29,6 +29,34 @@ def fung_resultants(E1, E2, Ebar, nu, k):
 
 
 @njit(cache=True)
+def segment_strains(X, Y, L0, S0, s):
+    """Green-Lagrange strains (E1 meridional, E2 hoop) of segment s:
+    E1 = (|X_{s+1} - X_s|^2 / L0_s^2 - 1) / 2,  E2 = (((x_s + x_{s+1}) / S0_s)^2 - 1) / 2."""
+    dx = X[s + 1] - X[s]
+    dy = Y[s + 1] - Y[s]
+    E1 = 0.5 * ((dx * dx + dy * dy) / (L0[s] * L0[s]) - 1.0)
+    lam2 = (X[s] + X[s + 1]) / S0[s]
+    return E1, 0.5 * (lam2 * lam2 - 1.0)
+
+
+@njit(cache=True)
+def add_segment_forces(X, Y, L0, S0, A0, s, N1, N2, Fx, Fy):
+    """Add -d(A0_s W_s)/dX [N] of segment s carrying the resultants N1, N2 [N/m] to Fx, Fy:
+    dW = N1 dE1 + N2 dE2 with dE1/dX = (X_{s+1} - X_s) . d/L0^2 and dE2/dx = lambda2 / S0."""
+    dx = X[s + 1] - X[s]
+    dy = Y[s + 1] - Y[s]
+    lam2 = (X[s] + X[s + 1]) / S0[s]
+    g1 = A0[s] * N1 / (L0[s] * L0[s])
+    Fx[s] += g1 * dx
+    Fy[s] += g1 * dy
+    Fx[s + 1] -= g1 * dx
+    Fy[s + 1] -= g1 * dy
+    g2 = A0[s] * N2 * lam2 / S0[s]
+    Fx[s] -= g2
+    Fx[s + 1] -= g2
+
+
+@njit(cache=True)
 def internal_forces(X, Y, L0, S0, A0, Ebar, nu, k, Fx, Fy):
     """Fx, Fy = -dPi/dX [N] (overwritten)."""
     n = X.shape[0]
@@ -36,20 +64,9 @@ def internal_forces(X, Y, L0, S0, A0, Ebar, nu, k, Fx, Fy):
         Fx[i] = 0.0
         Fy[i] = 0.0
     for s in range(n - 1):
-        dx = X[s + 1] - X[s]
-        dy = Y[s + 1] - Y[s]
-        E1 = 0.5 * ((dx * dx + dy * dy) / (L0[s] * L0[s]) - 1.0)
-        lam2 = (X[s] + X[s + 1]) / S0[s]
-        E2 = 0.5 * (lam2 * lam2 - 1.0)
+        E1, E2 = segment_strains(X, Y, L0, S0, s)
         N1, N2 = fung_resultants(E1, E2, Ebar, nu, k)
-        g1 = A0[s] * N1 / (L0[s] * L0[s])
-        Fx[s] += g1 * dx
-        Fy[s] += g1 * dy
-        Fx[s + 1] -= g1 * dx
-        Fy[s + 1] -= g1 * dy
-        g2 = A0[s] * N2 * lam2 / S0[s]
-        Fx[s] -= g2
-        Fx[s + 1] -= g2
+        add_segment_forces(X, Y, L0, S0, A0, s, N1, N2, Fx, Fy)
 
 
 @njit(cache=True)
