@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .kernels.membrane import (add_pressure_loads, even_fit_curvature, fung_resultants,
-                               internal_forces)
+                               internal_forces, max_wave_speed)
 
 
 def equibiaxial_tension(lam, Ebar, nu, k):
@@ -86,6 +86,12 @@ class MembraneModel:
         internal_forces(X, Y, self.L0, self.S0, self.A0, self.Ebar, self.nu, self.k, Fx, Fy)
         add_pressure_loads(X, Y, q, Fx, Fy)
         return Fx, Fy
+
+    def stable_substep(self, X, Y):
+        """Verlet sub-step [s]: MEMBRANE_SAFETY * L_min / c, c the largest in-plane wave speed of
+        the state (X, Y) from the Fung tangent stiffness."""
+        c = max_wave_speed(X, Y, self.L0, self.S0, self.Ebar, self.nu, self.k, self.rho_h)
+        return MEMBRANE_SAFETY * self.L0.min() / c
 
 
 def build_membrane(phi, R, p0, E0, h, nu, k, rho_c) -> MembraneModel:

@@ -21,6 +21,15 @@ GEOMETRIES = ("sector", "cap")
 LAYOUTS = ("isotropic", "polar")
 C_RULES = ("running_max", "per_step", "fixed")
 JET_START = ("as_written", "equilibrium")
+MODELS = ("paper", "clinical")
+CORNEAS = ("membrane", "shell")
+LIMBUS = ("clamped", "pinned")
+
+# The choices each ``model`` preset makes; an option given explicitly overrides its preset.
+MODEL_PRESETS: dict[str, dict[str, str]] = {
+    "paper": {"cornea": "membrane"},
+    "clinical": {"cornea": "shell"},
+}
 
 
 class ParameterError(ValueError):
@@ -114,13 +123,20 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "layout": LAYOUTS,
     "c_rule": C_RULES,
     "jet_start": JET_START,
+    "model": MODELS,
+    "cornea": CORNEAS,
+    "limbus": LIMBUS,
 }
+# None: taken from the ``model`` preset (MODEL_PRESETS) unless given
 CHOICE_DEFAULTS = {
     "resolution": "coarse",
     "geometry": "sector",
     "layout": "isotropic",
     "c_rule": "running_max",
     "jet_start": "as_written",
+    "model": "paper",
+    "cornea": None,
+    "limbus": "clamped",
 }
 CHOICE_DESCRIPTIONS = {
     "resolution": "node count: coarse (~300 fluid nodes), paper (~1100), fine (~4500)",
@@ -128,6 +144,10 @@ CHOICE_DESCRIPTIONS = {
     "layout": "fluid node layout: isotropic rings or the paper's polar lattice",
     "c_rule": "sound-speed rule: running_max of v_max, per_step (paper), or fixed c = c0",
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
+    "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options override it",
+    "cornea": "membrane (the paper's Fung membrane) or shell (with bending rigidity "
+              "D = E0 h^3/(12 (1 - nu^2))); default: as the model preset",
+    "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to rotate)",
 }
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")
@@ -178,6 +198,9 @@ class RunParams:
     layout: str = CHOICE_DEFAULTS["layout"]
     c_rule: str = CHOICE_DEFAULTS["c_rule"]
     jet_start: str = CHOICE_DEFAULTS["jet_start"]
+    model: str = CHOICE_DEFAULTS["model"]
+    cornea: str | None = CHOICE_DEFAULTS["cornea"]
+    limbus: str = CHOICE_DEFAULTS["limbus"]
     max_coupling_iterations: int = INT_PARAMETERS["max_coupling_iterations"][0]
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
@@ -196,10 +219,19 @@ class RunParams:
         return cls(**dict(values))
 
     def replace(self, **changes) -> "RunParams":
+        """A copy with ``changes``; a new ``model`` re-derives the options of its preset that
+        ``changes`` does not set."""
+        if "model" in changes:
+            for name in MODEL_PRESETS.get(changes["model"], {}):
+                changes.setdefault(name, None)
         return dataclasses.replace(self, **changes)
 
     # -- validation -------------------------------------------------------------------------
     def validate(self) -> None:
+        if self.model in MODEL_PRESETS:
+            for name, value in MODEL_PRESETS[self.model].items():
+                if getattr(self, name) is None:
+                    object.__setattr__(self, name, value)
         for name, spec in PARAMETERS.items():
             object.__setattr__(self, name, spec.check(getattr(self, name)))
         for name, allowed in CHOICES.items():

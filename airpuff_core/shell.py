@@ -67,10 +67,13 @@ class ShellModel(MembraneModel):
     D: float = 0.0  # bending rigidity [N m]
     limbus: int = LIMBUS_CLAMPED
 
-    stencil = 2  # the force on a node depends on the nodes up to two away
-
     def __post_init__(self):
         self.work = shell_work(self.n)
+
+    @property
+    def stencil(self):
+        """The force on a node depends on the nodes up to two away (one without bending)."""
+        return 2 if self.D != 0.0 else 1
 
     def bending_args(self):
         """The bending arguments of the shell kernels, in their order."""
@@ -100,18 +103,22 @@ class ShellModel(MembraneModel):
         return math.hypot(omega_membrane, omega_bending)
 
     def stable_substep(self, X, Y):
-        """Verlet sub-step [s]: MEMBRANE_SAFETY * 2 / omega_max (the membrane's rule
-        MEMBRANE_SAFETY * L_min / c when D = 0; Verlet is stable below 2 / omega_max)."""
+        """Verlet sub-step [s]: MEMBRANE_SAFETY * 2 / omega_max (Verlet is stable below
+        2 / omega_max); with D = 0 exactly the membrane's rule MEMBRANE_SAFETY * L_min / c."""
+        if self.D == 0.0:
+            return super().stable_substep(X, Y)
         return MEMBRANE_SAFETY * 2.0 / self.max_frequency(X, Y)
 
 
-def build_shell(phi, R, p0, E0, h, nu, k, rho_c, limbus="clamped") -> ShellModel:
+def build_shell(phi, R, p0, E0, h, nu, k, rho_c, limbus="clamped", bending=True) -> ShellModel:
     """Shell on reference angles ``phi`` (apex first), prestressed by p0 [Pa] on the drawn arc of
-    radius R [m]: the membrane of ``build_membrane`` with D = E0 h^3 / (12 (1 - nu^2))."""
+    radius R [m]: the membrane of ``build_membrane`` with D = E0 h^3 / (12 (1 - nu^2)), or with
+    D = 0 (the paper's membrane, computed by the same kernels bit for bit) when not ``bending``."""
     membrane = build_membrane(phi, R, p0, E0, h, nu, k, rho_c)
     X_ref = membrane.R_ref * np.sin(phi)
     Y_ref = membrane.R_ref * np.cos(phi)
-    return _with_bending(membrane, X_ref, Y_ref, plate_rigidity(E0, h, nu), limbus)
+    D = plate_rigidity(E0, h, nu) if bending else 0.0
+    return _with_bending(membrane, X_ref, Y_ref, D, limbus)
 
 
 def shell_on_meridian(X_ref, Y_ref, E0, h, nu, k, rho_c, limbus="clamped") -> ShellModel:

@@ -33,19 +33,19 @@ from .kernels.fluid import (AXIS, CORNEA, WALL, advance_density, advance_velocit
                             interface_pressure_change, max_density_deviation, max_speed,
                             tait_pressure, tait_pressure_at)
 from .kernels.mfpm import hyperviscous_flow_increments
-from .kernels.membrane import advance_membrane, air_jet, max_wave_speed
-from .membrane import (apex_curvature, apex_fit_nodes, build_membrane, jet_pressure,
-                       static_equilibrium)
+from .kernels.membrane import air_jet
+from .kernels.shell import advance_shell
+from .membrane import apex_curvature, apex_fit_nodes, jet_pressure, static_equilibrium
 from .metrics import compute_metrics
 from .params import MMHG_PA, RunParams
 from .result import SNAPSHOT_LABELS, RunResult
+from .shell import build_shell
 
 KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
 HV_SAFETY = 1.4  # dt <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2, unstable at 2.0 (measured)
 HV_POWER_ITERATIONS = 2  # power iterations per refresh, warm-started (the mode changes slowly)
 HV_REFRESH_STEPS = 4  # steps between refreshes (nodes move < 1 % of a spacing in between)
 HV_MARGIN = 1.1  # a warm-started power iteration may underestimate the radius slightly
-MEMBRANE_SAFETY = 0.4  # membrane sub-step <= MEMBRANE_SAFETY * min chord / wave speed
 P_REF = 1.0  # Pa: floor of the normalisation of the coupling residual (meaningful at rest)
 BLOWUP_SPEED = 50.0  # m/s: a fluid speed above this is a blow-up (physical speeds ~0.2-1 m/s)
 BLOWUP_DENSITY = 0.2  # relative density change beyond which the run is declared blown up
@@ -76,8 +76,10 @@ class CoupledModel:
         si = self.si = params.si()
         ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
                                           si["R"], si["r_post"], si["alpha0"])
-        self.membrane = build_membrane(ch.phi_cornea, si["R"], si["p0"], si["E0"], si["h"],
-                                       si["nu"], si["fung_k"], si["rho_c"])
+        # the paper's membrane is the shell with D = 0 (the same kernels, bit for bit)
+        self.membrane = build_shell(ch.phi_cornea, si["R"], si["p0"], si["E0"], si["h"],
+                                    si["nu"], si["fung_k"], si["rho_c"], params.limbus,
+                                    bending=params.cornea == "shell")
         self.jet = np.array([si["pmax"], si["a"], si["b"], si["T"], si["t0"]])
         n = ch.n
         self.kind = ch.kind
@@ -200,8 +202,7 @@ class CoupledModel:
         t_ms = self.t * 1e3
         rho0, p0, gam = si["rho_f"], si["p0"], si["gamma"]
         mem = self.membrane
-        c_mem = max_wave_speed(self.X, self.Y, mem.L0, mem.S0, mem.Ebar, mem.nu, mem.k, mem.rho_h)
-        n_sub = max(1, int(math.ceil(dt / (MEMBRANE_SAFETY * mem.L0.min() / c_mem))))
+        n_sub = max(1, int(math.ceil(dt / mem.stable_substep(self.X, self.Y))))
         self.last_substeps = n_sub
         ops_n, ops_half, ops_new = self.ops_n, self.ops_half, self.ops_new
 
@@ -252,9 +253,10 @@ class CoupledModel:
             Y[:] = self.Y
             VX[:] = self.VX
             VY[:] = self.VY
-            advance_membrane(X, Y, VX, VY, mem.mass, mem.phi, mem.L0, mem.S0, mem.A0, mem.Ebar,
-                             mem.nu, mem.k, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
-                             mF["Fx"], mF["Fy"], mF["q"])
+            advance_shell(X, Y, VX, VY, mem.mass, mem.phi, mem.L0, mem.S0, mem.A0,
+                          *mem.bending_args(), mem.Ebar, mem.nu, mem.k, mem.D, p_interface_n,
+                          p_est, self.t, dt, n_sub, self.jet, mem.work, mF["Fx"], mF["Fy"],
+                          mF["q"])
             impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
             # only the cornea's density enters the coupling: the operators of the cornea nodes
             # suffice (every node, with reuse=False), the full field follows convergence
@@ -461,6 +463,7 @@ def simulate(params: RunParams, progress=None, reuse: bool = True) -> RunResult:
         "mean_hyperviscous_substeps": float(np.mean(hv_substeps)) if hv_substeps else 0.0,
         "wall_s": wall,
         "prestretch": model.membrane.lambda0,
+        "bending_rigidity_N_m": model.membrane.D,
         "R_ref_mm": model.membrane.R_ref * 1e3,
         "rest_shape_deviation_mm": model.rest_shape_deviation * 1e3,
         "equilibrium_residual": model.equilibrium_residual,

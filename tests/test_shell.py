@@ -7,7 +7,10 @@ import math
 
 import numpy as np
 import pytest
+import xarray as xr
 
+from airpuff_core import ParameterError, RunParams, simulate
+from airpuff_core.dataset import params_from_dataset, write_netcdf
 from airpuff_core.kernels.membrane import internal_forces
 from airpuff_core.membrane import build_membrane, static_equilibrium
 from airpuff_core.shell import build_shell, plate_rigidity, shell_on_meridian
@@ -232,3 +235,29 @@ def test_rest_state_stays_on_the_drawn_arc():
         assert 0.5 < dev_shell / dev_membrane < 2.0
         deviations.append(dev_shell)
     assert math.log2(deviations[0] / deviations[1]) > 1.8
+
+
+def test_model_preset_and_explicit_options():
+    assert RunParams().model == "paper" and RunParams().cornea == "membrane"
+    assert RunParams(model="clinical").cornea == "shell"
+    assert RunParams(model="clinical", cornea="membrane").cornea == "membrane"
+    assert RunParams(model="paper", cornea="shell").cornea == "shell"
+    assert RunParams(model="clinical").replace(model="paper").cornea == "membrane"
+    assert RunParams(model="clinical").replace(E0=0.3).cornea == "shell"
+    for name, bad in (("cornea", "plate"), ("model", "clinic"), ("limbus", "free")):
+        with pytest.raises(ParameterError, match=f"invalid {name}=.*accepted one of"):
+            RunParams(**{name: bad})
+
+
+def test_shell_run_parameters_round_trip_through_netcdf(tmp_path):
+    """A short coupled shell run: the cornea, limbus and model options are in the netCDF and
+    read back as the same RunParams; the solver reports the bending rigidity it used."""
+    params = RunParams(model="clinical", limbus="pinned", t_end=0.2)
+    result = simulate(params)
+    path = write_netcdf(result.to_dataset(), tmp_path / "shell.nc")
+    with xr.open_dataset(path) as ds:
+        assert ds.attrs["cornea"] == "shell" and ds.attrs["limbus"] == "pinned"
+        assert ds.attrs["model"] == "clinical"
+        assert params_from_dataset(ds) == params
+        D = ds.attrs["solver_bending_rigidity_N_m"]
+    assert D == pytest.approx(plate_rigidity(0.5e6, 0.5e-3, 0.5), rel=1e-12)

@@ -75,22 +75,24 @@ def bending_energy_density(Ks, Kt, D, nu):
 
 
 @njit(cache=True)
-def shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, E1, E2, psi, Ks, Kt):
-    """All strains of the current state: membrane E1, E2 per segment, the segment angles psi
-    [rad] and the bending strains K_s, K_theta [1/m] per node (overwritten)."""
+def shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, D, E1, E2, psi, Ks, Kt):
+    """All strains of the current state: membrane E1, E2 per segment, and, when D != 0, the
+    segment angles psi [rad] and the bending strains K_s, K_theta [1/m] per node (overwritten)."""
     for s in range(X.shape[0] - 1):
         E1[s], E2[s] = segment_strains(X, Y, L0, S0, s)
-    segment_angles(X, Y, psi)
-    bending_strains(psi, psi_ref, dual_length, x_ref, limbus, Ks, Kt)
+    if D != 0.0:
+        segment_angles(X, Y, psi)
+        bending_strains(psi, psi_ref, dual_length, x_ref, limbus, Ks, Kt)
 
 
 @njit(cache=True)
 def shell_resultants(E1, E2, Ks, Kt, Ebar, nu, k, D, N1, N2, Ms, Mt):
     """The constitutive laws in one place: Fung membrane forces N1, N2 [N/m] per segment (second
-    Piola-Kirchhoff) and the linear bending moments M_s, M_theta [N] per node."""
+    Piola-Kirchhoff) and, when D != 0, the linear bending moments M_s, M_theta [N] per node."""
     for s in range(E1.shape[0]):
         N1[s], N2[s] = fung_resultants(E1[s], E2[s], Ebar, nu, k)
-    bending_moments(Ks, Kt, D, nu, Ms, Mt)
+    if D != 0.0:
+        bending_moments(Ks, Kt, D, nu, Ms, Mt)
 
 
 @njit(cache=True)
@@ -141,7 +143,7 @@ def shell_internal_forces(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_ar
     bit for bit."""
     n = X.shape[0]
     E1, E2, psi, N1, N2, G, Ks, Kt, Ms, Mt = _work_rows(work, n)
-    shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, E1, E2, psi, Ks, Kt)
+    shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, D, E1, E2, psi, Ks, Kt)
     shell_resultants(E1, E2, Ks, Kt, Ebar, nu, k, D, N1, N2, Ms, Mt)
     for i in range(n):
         Fx[i] = 0.0
@@ -170,7 +172,7 @@ def shell_energy(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbu
     sum_s A0_s W_membrane and sum_i A_i W_bending (``work`` as in ``shell_internal_forces``)."""
     n = X.shape[0]
     E1, E2, psi, N1, N2, G, Ks, Kt, Ms, Mt = _work_rows(work, n)
-    shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, E1, E2, psi, Ks, Kt)
+    shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, 1.0, E1, E2, psi, Ks, Kt)
     membrane = 0.0
     for s in range(n - 1):
         membrane += A0[s] * fung_energy_density(E1[s], E2[s], Ebar, nu, k)
