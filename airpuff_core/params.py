@@ -144,10 +144,12 @@ CHOICE_DESCRIPTIONS = {
     "layout": "fluid node layout: isotropic rings or the paper's polar lattice",
     "c_rule": "sound-speed rule: running_max of v_max, per_step (paper), or fixed c = c0",
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
-    "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options override it",
+    "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options "
+             "override it",
     "cornea": "membrane (the paper's Fung membrane) or shell (with bending rigidity "
               "D = E0 h^3/(12 (1 - nu^2))); default: as the model preset",
-    "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to rotate)",
+    "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
+              "rotate)",
 }
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")

@@ -7,8 +7,8 @@ The membrane of ``kernels/membrane.py`` plus a bending energy at the nodes:
 psi_s is the angle of segment s (psi = atan2(-dy, dx): 0 at the apex, phi on a sphere), measured
 from the reference psi_ref_s.  Reissner's bending strains, per reference length, at node i:
 
-    K_s     = (psi_i - psi_{i-1} - (psi_ref_i - psi_ref_{i-1})) / l_i,    l_i = (L0_{i-1} + L0_i) / 2
-    K_theta = (sin psibar_i - sin psibar_ref_i) / x_ref_i,                psibar_i = (psi_{i-1} + psi_i) / 2
+    K_s     = (psi_i - psi_{i-1} - (psi_ref_i - psi_ref_{i-1})) / l_i,  l_i = (L0_{i-1} + L0_i)/2
+    K_theta = (sin psibar_i - sin psibar_ref_i) / x_ref_i,          psibar_i = (psi_{i-1} + psi_i)/2
 
 Apex (symmetry, psi = 0 on the axis): the mirror segment has angle -psi_0, so
 K_s = K_theta = 2 (psi_0 - psi_ref_0) / L0_0.  Limbus: clamped (the tangent keeps its reference
@@ -28,7 +28,8 @@ forces from the resultants, so a history of N and M (viscoelasticity) can act be
 import numpy as np
 from numba import njit
 
-from .membrane import add_pressure_loads, add_segment_forces, air_jet, fung_resultants, segment_strains
+from .membrane import (add_pressure_loads, add_segment_forces, air_jet, fung_resultants,
+                       segment_strains)
 
 LIMBUS_PINNED = 0
 LIMBUS_CLAMPED = 1
