@@ -1,4 +1,6 @@
-"""The cornea: reference configuration, IOP prestress and the discrete static equilibrium.
+"""The cornea: reference configuration, IOP prestress and the discrete static equilibrium.  The
+advance in time is the shell's (``shell.py``): the paper's membrane is the shell with bending
+rigidity 0, computed by the same kernels bit for bit.
 
 The drawn arc (radius R) is the loaded state at IOP p0.  For a spherical membrane under uniform
 pressure the equibiaxial tension is p0 R / 2 (Laplace); for an equibiaxial membrane the Cauchy
@@ -21,6 +23,11 @@ import numpy as np
 
 from .kernels.membrane import (add_pressure_loads, even_fit_curvature, fung_resultants,
                                internal_forces, max_wave_speed)
+from .params import PRESTRETCH_MAX
+
+# Verlet sub-step <= MEMBRANE_SAFETY * 2 / omega_max, the Verlet limit being 2 / omega_max; for the
+# membrane, whose highest frequency is 2 c / L_min, that is MEMBRANE_SAFETY * min chord / c
+MEMBRANE_SAFETY = 0.4
 
 
 def equibiaxial_tension(lam, Ebar, nu, k):
@@ -30,13 +37,17 @@ def equibiaxial_tension(lam, Ebar, nu, k):
 
 
 def prestretch(p0, R, Ebar, nu, k):
-    """lambda0 with N(lambda0, lambda0) = p0 R / 2 (bisection; N is increasing in lambda)."""
+    """lambda0 with N(lambda0, lambda0) = p0 R / 2 (bisection; N is increasing in lambda).
+
+    ``RunParams.validate`` rejects the parameters that need lambda0 > PRESTRETCH_MAX (E0 below
+    ``params.softest_E0``), so the error here is reached only by direct calls."""
     target = 0.5 * p0 * R
     lo, hi = 1.0, 1.0
     while equibiaxial_tension(hi, Ebar, nu, k) < target:
-        hi = 1.0 + 2.0 * (hi - 1.0) + 1e-3
-        if hi > 10.0:
-            raise ValueError("no prestretch below 10 balances the IOP: the cornea is too soft")
+        if hi >= PRESTRETCH_MAX:
+            raise ValueError(f"no prestretch up to {PRESTRETCH_MAX:g} balances the pressure "
+                             f"{p0:g} Pa: the membrane (Ebar = {Ebar:g} N/m) is too soft")
+        hi = min(1.0 + 2.0 * (hi - 1.0) + 1e-3, PRESTRETCH_MAX)
     for _ in range(200):
         mid = 0.5 * (lo + hi)
         if equibiaxial_tension(mid, Ebar, nu, k) < target:
@@ -44,11 +55,6 @@ def prestretch(p0, R, Ebar, nu, k):
         else:
             hi = mid
     return 0.5 * (lo + hi)
-
-
-# Verlet sub-step <= MEMBRANE_SAFETY * 2 / omega_max (= MEMBRANE_SAFETY * min chord / wave speed for
-# the membrane, whose highest frequency is 2 c / L_min); the Verlet limit is 2 / omega_max
-MEMBRANE_SAFETY = 0.4
 
 
 @dataclass
@@ -79,6 +85,12 @@ class MembraneModel:
         not an arc), the scale of the finite-difference steps of ``static_equilibrium``."""
         return self.R_ref if math.isfinite(self.R_ref) else float(self.L0.sum())
 
+    def substeps(self, X, Y, dt):
+        """Verlet sub-steps that resolve the fastest membrane wave of the state (X, Y) [m] in a
+        step of dt [s]: dt / n <= MEMBRANE_SAFETY * min chord / wave speed."""
+        c_wave = max_wave_speed(X, Y, self.L0, self.S0, self.Ebar, self.nu, self.k, self.rho_h)
+        return max(1, int(math.ceil(dt / (MEMBRANE_SAFETY * self.L0.min() / c_wave))))
+
     def forces(self, X, Y, q):
         """Total nodal forces [N] at positions (X, Y) under net inside pressure q [Pa]."""
         Fx = np.empty_like(X)
@@ -86,12 +98,6 @@ class MembraneModel:
         internal_forces(X, Y, self.L0, self.S0, self.A0, self.Ebar, self.nu, self.k, Fx, Fy)
         add_pressure_loads(X, Y, q, Fx, Fy)
         return Fx, Fy
-
-    def stable_substep(self, X, Y):
-        """Verlet sub-step [s]: MEMBRANE_SAFETY * L_min / c, c the largest in-plane wave speed of
-        the state (X, Y) from the Fung tangent stiffness."""
-        c = max_wave_speed(X, Y, self.L0, self.S0, self.Ebar, self.nu, self.k, self.rho_h)
-        return MEMBRANE_SAFETY * self.L0.min() / c
 
 
 def build_membrane(phi, R, p0, E0, h, nu, k, rho_c) -> MembraneModel:
@@ -184,12 +190,6 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
             break
     rel, X, Y = best
     return X, Y, rel
-
-
-def jet_pressure(t, phi, pmax, a, b, T, t0):
-    """Eq. (11): p_a = pmax exp(-a sin^2 phi) exp(-b (t - t0)^2 / T^2)  [Pa], for arrays of times
-    t [s] or reference angles phi [rad] (numpy broadcasting; the kernels use ``air_jet``)."""
-    return pmax * np.exp(-a * np.sin(phi) ** 2) * np.exp(-b * (np.asarray(t) - t0) ** 2 / T ** 2)
 
 
 # m: apex curvature is fitted over the nodes with x <= this radius.  It must be small against the

@@ -20,14 +20,16 @@ from it by the membrane's O(dphi^2) and is reported by the run.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .kernels.membrane import add_pressure_loads, max_wave_speed
-from .kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, max_bending_frequency,
-                            shell_energy, shell_internal_forces, shell_work)
+from .kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell,
+                            max_bending_frequency, shell_energy, shell_internal_forces,
+                            shell_work)
 from .membrane import MEMBRANE_SAFETY, MembraneModel, build_membrane
 
 LIMBUS_CONDITIONS = {"clamped": LIMBUS_CLAMPED, "pinned": LIMBUS_PINNED}
@@ -69,6 +71,7 @@ class ShellModel(MembraneModel):
 
     def __post_init__(self):
         self.work = shell_work(self.n)
+        self._forces = tuple(np.empty(self.n) for _ in range(3))  # Fx, Fy [N], load q [Pa]
 
     @property
     def stencil(self):
@@ -104,10 +107,24 @@ class ShellModel(MembraneModel):
 
     def stable_substep(self, X, Y):
         """Verlet sub-step [s]: MEMBRANE_SAFETY * 2 / omega_max (Verlet is stable below
-        2 / omega_max); with D = 0 exactly the membrane's rule MEMBRANE_SAFETY * L_min / c."""
-        if self.D == 0.0:
-            return super().stable_substep(X, Y)
+        2 / omega_max)."""
         return MEMBRANE_SAFETY * 2.0 / self.max_frequency(X, Y)
+
+    def substeps(self, X, Y, dt):
+        """Verlet sub-steps that resolve the fastest wave of the state (X, Y) [m] in a step of dt
+        [s]: dt / n <= ``stable_substep``; with D = 0 exactly the membrane's rule."""
+        if self.D == 0.0:
+            return super().substeps(X, Y, dt)
+        return max(1, int(math.ceil(dt / self.stable_substep(X, Y))))
+
+    def advance(self, X, Y, VX, VY, p_start, p_end, t_start, dt, n_sub, jet):
+        """Advance the state (X, Y [m], VX, VY [m/s], in place) from t_start to t_start + dt [s] in
+        n_sub Verlet sub-steps, with the fluid pressure on the cornea going linearly from p_start
+        to p_end [Pa] and the air jet ``jet`` (``SIParams.jet()``) outside."""
+        Fx, Fy, q = self._forces
+        advance_shell(X, Y, VX, VY, self.mass, self.phi, self.L0, self.S0, self.A0,
+                      *self.bending_args(), self.Ebar, self.nu, self.k, self.D, p_start, p_end,
+                      t_start, dt, n_sub, jet, self.work, Fx, Fy, q)
 
 
 def build_shell(phi, R, p0, E0, h, nu, k, rho_c, limbus="clamped", bending=True) -> ShellModel:
@@ -141,6 +158,7 @@ def _with_bending(membrane: MembraneModel, X_ref, Y_ref, D, limbus) -> ShellMode
     if limbus not in LIMBUS_CONDITIONS:
         raise ValueError(f"limbus must be one of {', '.join(LIMBUS_CONDITIONS)}, not {limbus!r}")
     psi_ref, dual, x_ref, area = bending_reference(X_ref, Y_ref)
-    fields = {f: getattr(membrane, f) for f in MembraneModel.__dataclass_fields__}
+    fields = {f.name: getattr(membrane, f.name) for f in dataclasses.fields(MembraneModel)
+              if f.init}
     return ShellModel(**fields, psi_ref=psi_ref, dual_length=dual, x_ref=x_ref, node_area=area,
                       D=D, limbus=LIMBUS_CONDITIONS[limbus])

@@ -1,6 +1,6 @@
 """With pmax = 0 the prestressed cornea and the fluid stay at rest for the whole run, at coarse and
 paper resolution, for the membrane and the shell cornea (clamped and pinned limbus), with no
-balancing force (docs/model.md, section 3)."""
+balancing force (docs/model.md sections 3 and 3a)."""
 
 import numpy as np
 import pytest
