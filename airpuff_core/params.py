@@ -25,6 +25,12 @@ UL_M3 = 1e-9  # m^3 per microlitre
 # cornea that needs more is too soft for the membrane model.
 PRESTRETCH_MAX = 10.0
 
+# The choices each ``model`` preset makes; an option given explicitly overrides its preset.
+MODEL_PRESETS: dict[str, dict[str, str]] = {
+    "paper": {"cornea": "membrane"},
+    "clinical": {"cornea": "shell"},
+}
+
 
 class ParameterError(ValueError):
     """An invalid run parameter.  ``str(err)`` is one line naming the parameter and its range."""
@@ -121,7 +127,11 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "c_rule": ("running_max", "per_step", "fixed"),
     "jet_start": ("as_written", "equilibrium"),
     "globe": ("rigid", "compliant"),
+    "model": tuple(MODEL_PRESETS),
+    "cornea": ("membrane", "shell"),
+    "limbus": ("clamped", "pinned"),
 }
+# None: taken from the ``model`` preset (MODEL_PRESETS) unless given
 CHOICE_DEFAULTS = {
     "resolution": "coarse",
     "geometry": "sector",
@@ -129,6 +139,9 @@ CHOICE_DEFAULTS = {
     "c_rule": "running_max",
     "jet_start": "as_written",
     "globe": "rigid",
+    "model": "paper",
+    "cornea": None,
+    "limbus": "clamped",
 }
 CHOICE_DESCRIPTIONS = {
     "resolution": "node count: coarse (~300 fluid nodes), paper (~1100), fine (~4500)",
@@ -138,6 +151,12 @@ CHOICE_DESCRIPTIONS = {
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
     "globe": "rigid chamber walls (paper) or compliant: the walls recede with Friedenwald's "
              "pressure-volume law (ocular_rigidity)",
+    "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options "
+             "override it",
+    "cornea": "membrane (the paper's Fung membrane) or shell (with bending rigidity "
+              "D = E0 h^3/(12 (1 - nu^2))); default: as the model preset",
+    "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
+              "rotate)",
 }
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")
@@ -241,6 +260,9 @@ class RunParams:
     c_rule: str = CHOICE_DEFAULTS["c_rule"]
     jet_start: str = CHOICE_DEFAULTS["jet_start"]
     globe: str = CHOICE_DEFAULTS["globe"]
+    model: str = CHOICE_DEFAULTS["model"]
+    cornea: str | None = CHOICE_DEFAULTS["cornea"]
+    limbus: str = CHOICE_DEFAULTS["limbus"]
     max_coupling_iterations: int = INT_PARAMETERS["max_coupling_iterations"][0]
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
@@ -259,10 +281,19 @@ class RunParams:
         return cls(**dict(values))
 
     def replace(self, **changes) -> "RunParams":
+        """A copy with ``changes``; a new ``model`` re-derives the options of its preset that
+        ``changes`` does not set."""
+        if "model" in changes:
+            for name in MODEL_PRESETS.get(changes["model"], {}):
+                changes.setdefault(name, None)
         return dataclasses.replace(self, **changes)
 
     # -- validation -------------------------------------------------------------------------
     def validate(self) -> None:
+        if self.model in MODEL_PRESETS:
+            for name, value in MODEL_PRESETS[self.model].items():
+                if getattr(self, name) is None:
+                    object.__setattr__(self, name, value)
         for name, spec in PARAMETERS.items():
             object.__setattr__(self, name, spec.check(getattr(self, name)))
         for name, allowed in CHOICES.items():
