@@ -45,7 +45,7 @@ def add_run_options(parser: argparse.ArgumentParser, swept: bool = True) -> None
     for name, allowed in CHOICES.items():
         text = CHOICE_DESCRIPTIONS[name].replace("%", "%%")  # argparse formats help with %
         parser.add_argument(flag(name), dest=name, default=None, metavar="|".join(allowed),
-                            help=f"{text} (default {CHOICE_DEFAULTS[name]})")
+                            help=f"{text} (default {CHOICE_DEFAULTS[name] or 'from --model'})")
 
 
 def params_from_args(args: argparse.Namespace, **overrides) -> RunParams:

@@ -28,10 +28,12 @@ import math
 
 import numpy as np
 
+from .energy import EnergyBudget
 from .errors import SimulationError
 from .fluid import KAPPA, NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
 from .globe import CompliantWall, enclosed_volume_rate
+from .kernels.energy import jet_pressures
 from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_divergence, drift,
                             impose_cornea, interface_pressure_change, max_density_deviation,
                             max_speed, tait_pressure, tait_pressure_at)
@@ -41,6 +43,7 @@ from .kernels.nodes import AXIS, CORNEA, WALL
 from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from .params import RunParams
 from .shell import build_shell
+from .viscoelastic import ViscoelasticHistory
 
 # dt <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2, unstable at 2.0 (measured)
 HV_SAFETY = 1.4
@@ -101,6 +104,9 @@ class CoupledModel:
         self.mass = si.rho_fluid * ch.volume  # fixed particle masses [kg]
         self._start_cornea_at_rest()
         self._build_globe()
+        # the cornea starts fully relaxed (E0 is the equilibrium modulus, docs/model.md section 10)
+        self.viscoelastic = (ViscoelasticHistory(self.cornea_model, [si.ve_g], [si.ve_tau_s],
+                                                 self.X, self.Y) if si.ve_g > 0.0 else None)
         self.t = 0.0
         self.v_prev = 0.0
         self.v_running = 0.0
@@ -134,6 +140,9 @@ class CoupledModel:
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self._dv_new = np.zeros((2, n, 5))
+        # jet on the cornea at t^n and t^{n+1}, fluid pressure [Pa]: work arrays of the budget
+        self._energy_work = (np.empty(ch.phi_cornea.shape[0]), np.empty(ch.phi_cornea.shape[0]),
+                             np.empty(n))
         N = self.X.shape[0]
         self._cornea_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_trial = (np.empty(N), np.empty(N))  # interface pressure estimates [Pa]
@@ -144,6 +153,11 @@ class CoupledModel:
         self.last_hv_substeps = 0
         self.dt_hyperviscous = math.inf  # s, stability limit of the hyperviscosity (time_step)
         self.max_cond = float(self.ops_n.cond.max())
+        self.budget = EnergyBudget(self.cornea_model, self.viscoelastic, self.mass, si.rho_fluid,
+                                   si.p0_Pa, si.tait_gamma)
+        self.budget.start(self.X, self.Y, self.VX, self.VY, self.vx, self.vy, self.rho, self.c,
+                          self._overstress())
+        self._c_last = self.c
 
     def _start_cornea_at_rest(self):
         """The cornea starts in the exact discrete equilibrium under IOP (and p_a(0) with
@@ -290,6 +304,9 @@ class CoupledModel:
         cornea_model = self.cornea_model
         n_sub = cornea_model.substeps(self.X, self.Y, dt)
         self.last_substeps = n_sub
+        ve = self.viscoelastic
+        if ve is not None:
+            ve.set_substep(dt / n_sub)
         # pressure at t^n with this step's c (the EOS changes with c at fixed density)
         p_interface_n = self._p_interface_n
         tait_pressure_at(self.cornea_nodes, self.rho, rho0, p0, c, gam, p_interface_n)
@@ -303,7 +320,9 @@ class CoupledModel:
             Y[:] = self.Y
             VX[:] = self.VX
             VY[:] = self.VY
-            cornea_model.advance(X, Y, VX, VY, p_interface_n, p_est, self.t, dt, n_sub, self.jet)
+            history = None if ve is None else ve.begin_trial()
+            cornea_model.advance(X, Y, VX, VY, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
+                                 history)
             impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
             if self.wall is not None:
                 self._wall_trial = self._impose_wall(X, Y, VX, VY, dt)
@@ -352,6 +371,9 @@ class CoupledModel:
         Raises SimulationError when the new state has blown up."""
         si = self.si
         w = self._work
+        self._account_energy(dt)
+        if self.viscoelastic is not None:
+            self.viscoelastic.commit()
         cornea_n = (self.X, self.Y, self.VX, self.VY)
         self.X, self.Y, self.VX, self.VY = self._cornea_trial
         self._cornea_trial = cornea_n
@@ -380,6 +402,40 @@ class CoupledModel:
         if not math.isfinite(dev) or dev > BLOWUP_DENSITY:
             raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: density deviates "
                                   f"by {dev:.3g} from the reference", self.t * 1e3, "blow-up")
+
+    def _overstress(self):
+        return None if self.viscoelastic is None else self.viscoelastic.overstress
+
+    def _account_energy(self, dt):
+        """Add the work terms of the step just coupled to the energy budget (energy.py): the
+        state at t^n is still the model's, the coupled one in the trial and work arrays."""
+        si = self.si
+        w = self._work
+        X, Y = self._cornea_trial[0], self._cornea_trial[1]
+        phi = self.chamber.phi_cornea
+        jet_n, jet_new, p_n = self._energy_work
+        jet_pressures(self.t, phi, self.jet, jet_n)
+        jet_pressures(self.t + dt, phi, self.jet, jet_new)
+        tait_pressure(self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
+        globe = 0.0
+        if self.wall is not None:
+            p_wall_n = self.wall.mean_pressure(p_n)
+            tait_pressure(w["rho_new"], si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
+            p_wall = 0.5 * (p_wall_n + self.wall.mean_pressure(p_n))
+            globe = p_wall * self.wall.area * (self._wall_trial[0] - self.wall.displacement)
+            tait_pressure(self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
+        ve = self.viscoelastic
+        self.budget.account_step(dt, jet_n, jet_new, self.X, self.Y, X, Y, self._overstress(),
+                                 None if ve is None else ve.trial_overstress, self.kind, self.x,
+                                 self.vx, self.vy, w["vx_new"], w["vy_new"], self.dv, self.rho,
+                                 si.mu, w["hv_vx"], w["hv_vy"], w["hv_rho"], p_n, self._c_last,
+                                 self.c, globe)
+        self._c_last = self.c
+
+    def energy_terms(self):
+        """The energy budget's terms at the current state [uJ] (energy.py)."""
+        return self.budget.terms(self.X, self.Y, self.VX, self.VY, self.vx, self.vy, self.rho,
+                                 self.c, self._overstress())
 
     # -- quantities of the current state ----------------------------------------------------
     def apex_curvature(self):

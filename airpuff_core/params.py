@@ -26,10 +26,15 @@ UL_M3 = 1e-9  # m^3 per microlitre
 PRESTRETCH_MAX = 10.0
 
 # The choices each ``model`` preset makes; an option given explicitly overrides its preset.
-MODEL_PRESETS: dict[str, dict[str, str]] = {
-    "paper": {"cornea": "membrane"},
-    "clinical": {"cornea": "shell"},
+MODEL_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {"cornea": "membrane", "globe": "rigid", "ve_g": 0.0, "ve_tau": 10.0},
+    # the shell, the compliant globe, and the viscoelasticity that Kling et al. (PLoS ONE 2014,
+    # e104904, table 3) fitted to human in-vivo air-puff deformation (docs/model.md section 10)
+    "clinical": {"cornea": "shell", "globe": "compliant", "ve_g": 0.3, "ve_tau": 10.0},
 }
+# the numeric parameters a preset sets: None (not given) until ``RunParams.validate``
+PRESET_PARAMETERS = tuple(name for name in MODEL_PRESETS["clinical"]
+                          if not isinstance(MODEL_PRESETS["clinical"][name], str))
 
 
 class ParameterError(ValueError):
@@ -114,6 +119,13 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
         _p("cfl", "1", 0.6, 0.0, 0.6,
            "acoustic CFL number: dt = cfl * h_min / (c + v_max) (stable to 0.72 at rest)"),
+        _p("ve_g", "1", 0.0, 0.0, 0.95,
+           "relative modulus g of the one-term Prony series of the cornea's viscoelasticity, "
+           "G(t) = 1 - g (1 - exp(-t/ve_tau)), E0 the relaxed modulus; 0 is elastic; set by the "
+           "model preset (paper 0, clinical 0.3: Kling et al. 2014)", low_inc=True),
+        _p("ve_tau", "ms", 10.0, 0.0, 1000.0,
+           "relaxation time of the cornea's viscoelasticity; set by the model preset (10: Kling "
+           "et al. 2014)"),
         _p("ocular_rigidity", "1/uL", 0.0126, 0.0, 0.1,
            "Friedenwald's ocular rigidity K of the compliant globe, dP/dV = ln(10) K P "
            "(globe=compliant; in-vivo mean 0.0126, Pallikaris et al. 2005)"),
@@ -138,7 +150,7 @@ CHOICE_DEFAULTS = {
     "layout": "isotropic",
     "c_rule": "running_max",
     "jet_start": "as_written",
-    "globe": "rigid",
+    "globe": None,
     "model": "paper",
     "cornea": None,
     "limbus": "clamped",
@@ -151,10 +163,10 @@ CHOICE_DESCRIPTIONS = {
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
     "globe": "rigid chamber walls (paper) or compliant: the walls recede with Friedenwald's "
              "pressure-volume law (ocular_rigidity)",
-    "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options "
-             "override it",
+    "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shell cornea, "
+             "compliant globe, viscoelastic: ve_g 0.3, ve_tau 10 ms); explicit options override it",
     "cornea": "membrane (the paper's Fung membrane) or shell (with bending rigidity "
-              "D = E0 h^3/(12 (1 - nu^2))); default: as the model preset",
+              "D = E0 h^3/(12 (1 - nu^2)))",
     "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
               "rotate)",
 }
@@ -218,6 +230,8 @@ class SIParams:
     hyperviscosity: float  # strength gamma of the hyperviscosity
     output_interval_s: float  # interval of the stored time histories
     cfl: float  # acoustic CFL number
+    ve_g: float  # relative modulus of the Prony term (0: elastic)
+    ve_tau_s: float  # its relaxation time
     ocular_rigidity_per_m3: float  # Friedenwald's K of the compliant globe
 
     def jet(self) -> np.ndarray:
@@ -253,6 +267,8 @@ class RunParams:
     hyperviscosity: float = PARAMETERS["hyperviscosity"].default
     output_interval: float = PARAMETERS["output_interval"].default
     cfl: float = PARAMETERS["cfl"].default
+    ve_g: float | None = None  # from the model preset unless given
+    ve_tau: float | None = None  # from the model preset unless given
     ocular_rigidity: float = PARAMETERS["ocular_rigidity"].default
     resolution: str = CHOICE_DEFAULTS["resolution"]
     geometry: str = CHOICE_DEFAULTS["geometry"]
@@ -290,10 +306,11 @@ class RunParams:
 
     # -- validation -------------------------------------------------------------------------
     def validate(self) -> None:
-        if self.model in MODEL_PRESETS:
-            for name, value in MODEL_PRESETS[self.model].items():
-                if getattr(self, name) is None:
-                    object.__setattr__(self, name, value)
+        if self.model not in MODEL_PRESETS:  # before the preset fills its options
+            raise ParameterError("model", self.model, "one of " + ", ".join(MODEL_PRESETS))
+        for name, value in MODEL_PRESETS[self.model].items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
         for name, spec in PARAMETERS.items():
             object.__setattr__(self, name, spec.check(getattr(self, name)))
         for name, allowed in CHOICES.items():
@@ -370,5 +387,7 @@ class RunParams:
             hyperviscosity=self.hyperviscosity,
             output_interval_s=self.output_interval * 1e-3,
             cfl=self.cfl,
+            ve_g=self.ve_g,
+            ve_tau_s=self.ve_tau * 1e-3,
             ocular_rigidity_per_m3=self.ocular_rigidity / UL_M3,
         )

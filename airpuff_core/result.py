@@ -49,6 +49,16 @@ HISTORIES: dict[str, tuple[str, str]] = {
                            "(0 with globe=rigid)"),
     "globe_pressure": ("mmHg", "pressure of the globe's pressure-volume law for the volume the "
                        "cornea has pushed in (the IOP with globe=rigid)"),
+    # the energy budget, cumulative from t = 0 (energy.py)
+    "jet_work": ("uJ", "work of the air jet on the cornea"),
+    "kinetic_energy": ("uJ", "kinetic energy of cornea and fluid, change since t = 0"),
+    "elastic_energy": ("uJ", "stored energy (cornea strain and viscoelastic overstress, fluid "
+                       "compression), change since t = 0"),
+    "tissue_dissipation": ("uJ", "energy dissipated by the cornea's viscoelasticity"),
+    "fluid_dissipation": ("uJ", "energy removed by the fluid's viscosity and hyperviscosity"),
+    "globe_work": ("uJ", "work of the fluid on the compliant walls (0 with globe=rigid)"),
+    "energy_residual": ("uJ", "jet work minus the terms above, plus the energy that sound-speed "
+                        "changes add: what the discretisation does not conserve"),
     "coupling_iterations": ("1", "Dirichlet-Neumann iterations in the last solver step"),
     "sound_speed": ("m/s", "artificial sound speed c"),
 }
