@@ -248,7 +248,7 @@ def create_app(settings: Settings) -> FastAPI:
     def submit(body: SweepRequest, response: Response, request: Request,  # type: ignore[valid-type]
                con: sqlite3.Connection = Depends(get_db)):
         from sweep.grid import SweepSpec
-        from sweep.store import point_key
+        from sweep.storage import point_key
 
         values = body.model_dump()
         axes = {name: values.pop(name) for name in SWEPT}
@@ -357,7 +357,7 @@ def create_app(settings: Settings) -> FastAPI:
     def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):
         # Interpolation only (milliseconds): the metrics come from the job database, so this
         # handler never opens a netCDF file and never runs the solver.
-        from sweep.identify import IdentifyError, SweepTable, identify
+        from sweep.identification import IdentifyError, SweepTable, identify
 
         if body.refine:
             raise _problem_422(["body", "refine"], "refine",

@@ -2,7 +2,7 @@
 
 Everything here is in the user units of ``airpuff run`` (MPa, mmHg, mm, kPa; see
 ``airpuff_core.params.PARAMETERS``).  This module only describes *which* runs a sweep consists of;
-running them is ``sweep.runner``'s job and storing them ``sweep.store``'s.
+running them is ``sweep.runner``'s job and storing them ``sweep.storage``'s.
 
 Interface used by the HTTP API (issue 5) -- keep these names:
 

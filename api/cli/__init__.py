@@ -1,17 +1,25 @@
-"""The `airpuff` command: assembles the sub-commands of the three packages.
+"""The `airpuff` command: one home for every sub-command and the helpers they share.
 
-It lives in ``api`` because that package sits at the top of the dependency chain
-(api -> sweep -> airpuff_core); airpuff_core never imports the other two.
+It sits at the top of the dependency stack (api -> sweep -> airpuff_core), so that the numerical
+core and the sweep machinery import nothing of the command line:
+
+* ``common``   -- ``OneLineParser``, ``fail`` (exit code 2, one line), ``add_run_options``,
+                  ``params_from_args``, ``TerminalProgress``
+* ``run``      -- ``airpuff run`` and ``airpuff plot``
+* ``sweep``    -- ``airpuff sweep``
+* ``identify`` -- ``airpuff identify``
+* ``serve``    -- ``airpuff serve``
+
+The entry point is ``api.cli:main`` (pyproject.toml); ``python -m api.cli`` runs the same.
 """
 
 from __future__ import annotations
 
-import sys
-
-from airpuff_core.cli import OneLineParser, add_plot_parser, add_run_parser
-from api.serve import add_serve_parser
-from sweep.cli import add_sweep_parser
-from sweep.identify_cli import add_identify_parser
+from .common import OneLineParser
+from .identify import add_identify_parser
+from .run import add_plot_parser, add_run_parser
+from .serve import add_serve_parser
+from .sweep import add_sweep_parser
 
 
 def build_parser() -> OneLineParser:
@@ -29,7 +37,3 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     return int(args.func(args) or 0)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
