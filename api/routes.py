@@ -186,8 +186,8 @@ def make_submit(SweepRequest):  # noqa: N803 - a model class
                 f"E0 x IOP x thickness x pmax: the grid has {shape} = {n} points; "
                 f"accepted: at most {settings.max_points} points", "grid_too_large")
         try:
-            spec = SweepSpec(**axes, options=values).validate()
-            points = spec.points()
+            spec = SweepSpec(**axes, options=values)
+            points = spec.validated_points()
         except ParameterError as err:
             raise problem_422(["body", err.name], err.name, str(err)) from None
         job_id = uuid.uuid4().hex

@@ -4,18 +4,21 @@ The states and transitions are listed in ``api.status``; every SQL statement is 
 of ``api.db``.  One loop (period ``Settings.poll_interval``, woken early by the API on submit and
 cancel), one method per step:
 
-1. ``_drop_cancelled`` -- cancelled jobs (the API marks the job and its pending points ``cancelled`` in one
-   transaction): futures that no queued or running job needs are cancelled on the cluster;
-2. ``_start_queued`` -- queued jobs (oldest first): claimed (``running``); each pending point is either taken from the
-   ``points`` table (same key, result file still on disk: *reused*), attached to a future that is
-   already computing that key for another job, or submitted as ``sweep.worker.compute_point``
-   with ``pure=False``, ``retries`` and a priority that favours older jobs;
-3. ``_collect`` -- finished futures: the point's netCDF file, which came back through Dask as bytes, is written
-   into the data directory by this thread (``sweep.storage.save_point``), then the point's record
-   goes to ``points`` and to every running job waiting for that key, in one transaction;
-4. ``_finish_jobs`` -- running jobs with no pending point: the point files are combined into the job's ``sweep.nc``
-   (only this thread touches netCDF in the server process) and the job becomes ``done`` (or
-   ``failed`` if every point failed or combining failed).
+1. ``_drop_cancelled`` -- cancelled jobs (the API marks the job and its pending points
+   ``cancelled`` in one transaction): futures that no queued or running job needs are cancelled
+   on the cluster;
+2. ``_start_queued`` -- queued jobs (oldest first) become ``running``; each pending point is
+   either taken from the ``points`` table (same key, result file still on disk: *reused*),
+   attached to a future that is already computing that key for another job, or submitted as
+   ``sweep.worker.compute_point`` with ``pure=False``, ``retries`` and a priority that favours
+   older jobs;
+3. ``_collect`` -- finished futures: the point's netCDF file, which came back through Dask as
+   bytes, is written into the data directory by this thread (``sweep.storage.save_point``), then
+   the point's record goes to ``points`` and to every running job waiting for that key, in one
+   transaction;
+4. ``_finish_jobs`` -- running jobs with no pending point: the point files are combined into the
+   job's ``sweep.nc`` (only this thread touches netCDF in the server process) and the job becomes
+   ``done`` (or ``failed`` if every point failed or combining failed).
 
 Why results travel back through Dask instead of workers writing into the data directory: with
 ``--scheduler`` the workers may run in other containers, on other hosts, in batch jobs or in

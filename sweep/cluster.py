@@ -145,9 +145,10 @@ def warm_workers(client, params=None) -> dict[str, dict]:
     warm workers: their times measure the solver, and a worker that would compile (a cache that
     does not fit its CPU, or a worker started without the shared ``NUMBA_CACHE_DIR``) shows up
     here.  The tiny point is ``params`` (a ``RunParams``: the sweep's options) shortened as in
-    ``sweep.numba_cache.warm_numba_cache``; it goes through ``sweep.worker.compute_point``, the code path of a
-    real point, and writes nothing outside a private temporary folder.  The client's own cache
-    must be warm first (``sweep.numba_cache.warm_numba_cache``), or the workers compile concurrently.
+    ``sweep.numba_cache.warm_numba_cache``; it goes through ``sweep.worker.compute_point``, the
+    code path of a real point, and writes nothing outside a private temporary folder.  The
+    client's own cache must be warm first (``sweep.numba_cache.warm_numba_cache``), or the
+    workers compile concurrently.
 
     Returns worker address -> ``{"pid", "seconds" (wall time of the warm-up on the worker [s]),
     "status" ("ok" / "failed"), "message", "jit_compiled", "jit_loaded"}``; a worker whose

@@ -7,8 +7,8 @@ after an interruption), ``message`` (why a point failed, or why some of its metr
 ``point_key`` (the per-point file with the shapes and fluid fields is ``<points_dir>/<point_key>.nc``,
 named in the ``point_files`` attribute), ``wall_time`` [s], and the histories of
 ``SWEEP_HISTORIES`` on one common ``time`` axis.  The non-swept run options are scalar
-coordinates (numbers, with units) and global attributes (all of them, as JSON too).  The layout
-is documented in docs/api.md ("The combined dataset").
+coordinates (numbers, with units) and global attributes (all of them, as JSON too).  The
+per-point files it refers to are described in docs/model.md, section 7.
 """
 
 from __future__ import annotations

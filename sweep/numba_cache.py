@@ -137,7 +137,8 @@ def jit_counts() -> dict[str, tuple[int, int]]:
     return counts
 
 
-def jit_delta(before: dict[str, tuple[int, int]], after: dict[str, tuple[int, int]]) -> tuple[int, int]:
+def jit_delta(before: dict[str, tuple[int, int]],
+              after: dict[str, tuple[int, int]]) -> tuple[int, int]:
     """(compiles, cache loads) between two :func:`jit_counts` snapshots of this process."""
     def grown(which: int) -> int:
         return int(sum(v[which] - before.get(k, (0, 0))[which] for k, v in after.items()))

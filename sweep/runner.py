@@ -94,13 +94,12 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
     steady-state throughput, which then excludes the cluster's start-up.
     """
     t_start = time.perf_counter()
-    spec.validate()
+    points = spec.validated_points()
     out_dir = Path(out_dir)
     points_dir = Path(points_dir) if points_dir is not None else out_dir / POINTS_SUBDIR
     points_dir.mkdir(parents=True, exist_ok=True)
     write_spec(spec, out_dir)
 
-    points = spec.points()
     keys = [point_key(p) for p in points]  # the one hash of each point; passed on from here
     records: dict[str, dict] = {}
     todo: list[tuple[str, RunParams]] = []

@@ -3,9 +3,9 @@
 Layout of a sweep folder ``DIR``::
 
     DIR/sweep.json                the SweepSpec (user units), written when the sweep starts
-    DIR/points/<key>.nc           a finished point: the full per-run netCDF (docs/model.md, "Output")
+    DIR/points/<key>.nc           a finished point: the per-run netCDF (docs/model.md, section 7)
     DIR/points/<key>.failed.json  a failed point: parameters, reason, error type
-    DIR/sweep.nc                  the combined file (dims E0, IOP, thickness, pmax; ``sweep.combine``)
+    DIR/sweep.nc                  the combined file (dims E0, IOP, thickness, pmax): sweep.combine
 
 Why one file per point: netCDF4/HDF5 cannot take writes from several processes into one file
 (measured: 65 % of concurrent appends fail), so each point file is written to a temporary name
