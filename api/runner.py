@@ -236,9 +236,8 @@ class Runner:
             log.info("cancelled %d point task(s) no job needs any more", len(drop))
 
     def _start_queued(self) -> None:
-        """queued -> running: each pending point is reused, shared or submitted."""
+        """queued -> running (or failed, if this version cannot run the stored job)."""
         from sweep.grid import SweepSpec
-        from sweep.storage import point_key, read_point
 
         for job in db.queued_jobs(self.con):
             job_id = job["id"]
@@ -251,37 +250,43 @@ class Runner:
             except Exception as err:  # noqa: BLE001 - a stored spec this version cannot run
                 self._end_job(job_id, "failed", f"cannot start the job: {err}")
                 continue
-            pending = db.pending_job_points(self.con, job_id)
-            reused, submit, on_disk = [], {}, {}
-            for row in pending:
-                params = points[row["idx"]]
-                # The key was computed when the job was submitted; it is recomputed here only to
-                # follow a change of the key's definition between versions (a stored job of an
-                # older server).
-                key = point_key(params)
-                if key != row["key"]:
-                    db.set_job_point_key(self.con, job_id, row["idx"], key)
-                if key in self.futures or key in submit or key in on_disk:
-                    continue  # already computing for another job (or listed twice)
-                stored = self._stored(key)
-                if stored is not None:
-                    reused.append((stored["status"], stored["message"], job_id, key))
-                    continue
-                found = read_point(self.settings.points_dir, key)
-                if found is not None:  # a file written just before a crash (no record yet)
-                    on_disk[key] = (params, {**found, "computed": False})
-                else:
-                    submit[key] = params
-            if reused:
-                db.mark_reused(self.con, reused)
-            if on_disk:
-                self._ensure_point_rows({k: p for k, (p, _) in on_disk.items()})
-                self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
-            self._submit(job_id, job["seq"], submit)
-            n_reused = len(reused) + len(on_disk)
-            log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
-                     job_id, len(points), n_reused, len(submit),
-                     len(pending) - n_reused - len(submit))
+            self._dispatch(job_id, job["seq"], points)
+
+    def _dispatch(self, job_id: str, seq: int, points: list) -> None:
+        """Each pending point of a job just started is reused (its result is stored), shared (a
+        future computes its key already), read back (a file without a record) or submitted."""
+        from sweep.storage import point_key, read_point
+
+        pending = db.pending_job_points(self.con, job_id)
+        reused, submit, on_disk = [], {}, {}
+        for row in pending:
+            params = points[row["idx"]]
+            # The key was computed when the job was submitted; it is recomputed here only to
+            # follow a change of the key's definition between versions (a stored job of an
+            # older server).
+            key = point_key(params)
+            if key != row["key"]:
+                db.set_job_point_key(self.con, job_id, row["idx"], key)
+            if key in self.futures or key in submit or key in on_disk:
+                continue  # already computing for another job (or listed twice)
+            stored = self._stored(key)
+            if stored is not None:
+                reused.append((stored["status"], stored["message"], job_id, key))
+                continue
+            found = read_point(self.settings.points_dir, key)
+            if found is not None:  # a file written just before a crash (no record yet)
+                on_disk[key] = (params, {**found, "computed": False})
+            else:
+                submit[key] = params
+        if reused:
+            db.mark_reused(self.con, reused)
+        if on_disk:
+            self._ensure_point_rows({k: p for k, (p, _) in on_disk.items()})
+            self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
+        self._submit(job_id, seq, submit)
+        n_reused = len(reused) + len(on_disk)
+        log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
+                 job_id, len(points), n_reused, len(submit), len(pending) - n_reused - len(submit))
 
     def _stored(self, key: str):
         """The points row of ``key`` if its result is final and its file is still on disk."""

@@ -48,15 +48,17 @@ def run_command(args) -> int:
         fail(prog, err)
     progress = TerminalProgress(f"run {params.resolution}") if not args.json else None
     t_start = time.monotonic()
+    failure = None
     try:
         result = simulate(params, progress=progress)
     except SimulationError as err:
+        failure = err
+    finally:
         if progress:
-            progress.close()
-        sys.stderr.write(f"{prog}: simulation failed: {err}\n")
+            progress.close()  # before any message: the bar's line ends first
+    if failure is not None:
+        sys.stderr.write(f"{prog}: simulation failed: {failure}\n")
         return 1
-    if progress:
-        progress.close()
     wall = time.monotonic() - t_start
     if args.out:
         from airpuff_core.dataset import write_netcdf

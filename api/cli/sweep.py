@@ -90,22 +90,21 @@ def sweep_command(args) -> int:
     except ParameterError as err:
         fail(PROG, err)
     progress = None if args.json else SweepProgress()
+    stopped = None  # (exit code, message) if the sweep did not finish
     try:
         outcome = run_sweep(spec, args.out, workers=workers, scheduler=args.scheduler,
                             progress=progress, retry_failed=args.retry_failed)
     except KeyboardInterrupt:
-        if progress:
-            progress.close()
-        sys.stderr.write(f"{PROG}: interrupted; finished points are stored in {args.out}; "
-                         "run the same command again to resume\n")
-        return 130
+        stopped = (130, f"interrupted; finished points are stored in {args.out}; "
+                        "run the same command again to resume")
     except (OSError, TimeoutError) as err:  # e.g. no scheduler at --scheduler, unwritable --out
+        stopped = (1, f"error: {' '.join(str(err).split())}")
+    finally:
         if progress:
-            progress.close()
-        sys.stderr.write(f"{PROG}: error: {' '.join(str(err).split())}\n")
-        return 1
-    if progress:
-        progress.close()
+            progress.close()  # before any message: the bar's line ends first
+    if stopped:
+        sys.stderr.write(f"{PROG}: {stopped[1]}\n")
+        return stopped[0]
     for w in outcome.warnings:
         sys.stderr.write(f"{PROG}: warning: {w}\n")
     if args.json:
