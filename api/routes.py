@@ -4,7 +4,7 @@ Every handler only reads the job database (``api.db``), except ``POST /sweeps``,
 new job, and ``DELETE /sweeps/{id}``, which marks it cancelled; the job runner (``api.runner``)
 does the work.  The handlers find the service's ``Settings`` and runner on ``request.app.state``.
 ``POST /sweeps`` validates its body once, at this edge (the request model of ``api.schemas``,
-generated from the parameter table, then the grid as a whole by ``SweepSpec.validate``), and
+generated from the parameter table, then the grid as a whole by ``SweepSpec.validated_points``), and
 computes each point's key once; the rest of the system takes both as given.
 """
 
@@ -45,11 +45,13 @@ def get_db(request: Request) -> Iterator[sqlite3.Connection]:
     finally:
         con.close()
 
+
 def job_or_404(con, job_id: str) -> sqlite3.Row:
     row = db.get_job(con, job_id)
     if row is None:
         raise HTTPException(404, f"no sweep job with id {job_id!r}")
     return row
+
 
 def job_info(row: sqlite3.Row) -> dict[str, Any]:
     spec = json.loads(row["spec_json"])
@@ -66,7 +68,8 @@ def job_info(row: sqlite3.Row) -> dict[str, Any]:
         "links": {"self": base, "metrics": base + "/metrics", "dataset": base + "/dataset"},
     }
 
-# -- routes ------------------------------------------------------------------------------
+
+# -- routes ---------------------------------------------------------------------------------------
 
 def health(request: Request):
     runner = request.app.state.runner
@@ -74,98 +77,6 @@ def health(request: Request):
         return {"status": "ok", "version": __version__, "runner": "disabled"}
     return {"status": "ok", "version": __version__, "runner": runner.state,
             "runner_error": runner.error, "workers": runner.n_workers}
-
-def list_sweeps(limit: int = Query(100, ge=1, le=1000, description="jobs per page"),
-                offset: int = Query(0, ge=0, le=2**62, description="jobs to skip"),
-                status_: Optional[schemas.JobStatusName] = Query(
-                    None, alias="status", description="only jobs with this status"),
-                con: sqlite3.Connection = Depends(get_db)):
-    rows = db.list_jobs(con, limit, offset, status_)
-    return {"jobs": [job_info(r) for r in rows], "total": db.count_jobs(con, status_)}
-
-def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-    return job_info(job_or_404(con, job_id))
-
-def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-    row = job_or_404(con, job_id)
-    points = []
-    for p in db.job_points(con, job_id):
-        rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
-        for name in SWEPT:
-            rec[name] = p[name]
-        rec["status"] = p["status"]
-        rec["message"] = p["message"]
-        rec["reused"] = bool(p["reused"])
-        m = db.loads(p["metrics_json"]) if p["status"] == "ok" else None
-        for name in METRICS:
-            rec[name] = (m or {}).get(name)
-        points.append(rec)
-    return {"id": job_id, "status": row["status"], "units": schemas.units(), "points": points}
-
-def get_dataset(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
-    settings = request.app.state.settings
-    row = job_or_404(con, job_id)
-    if row["status"] != "done":
-        raise HTTPException(409, f"job {job_id} is {row['status']}; its dataset exists once "
-                                 "it is done")
-    # The path comes from the job's own id as stored in the database, never from the request,
-    # and must lie inside this job's folder.
-    path = settings.job_dataset(row["id"]).resolve()
-    job_dir = (settings.jobs_dir / row["id"]).resolve()
-    if job_dir not in path.parents or not path.is_file():
-        raise HTTPException(404, f"the dataset of job {job_id} is missing on the server")
-    return FileResponse(path, media_type="application/x-netcdf",
-                        filename=f"airpuff-sweep-{row['id']}.nc")
-
-def cancel(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
-    row = job_or_404(con, job_id)
-    if row["status"] in ("queued", "running"):
-        db.cancel_job(con, job_id)
-        runner = request.app.state.runner
-        if runner is not None:
-            runner.wake()
-        row = job_or_404(con, job_id)
-    if row["status"] in ("done", "failed"):
-        raise HTTPException(409, f"job {job_id} already ended ({row['status']})")
-    return job_info(row)
-
-def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):
-    # Interpolation only (milliseconds): the metrics come from the job database, so this
-    # handler never opens a netCDF file and never runs the solver.
-
-    if body.refine:
-        raise problem_422(["body", "refine"], "refine",
-                           "refine: solver refinement is not offered over HTTP; accepted: "
-                           "false (use `airpuff identify --refine` on the downloaded dataset)")
-    row = job_or_404(con, body.job_id)
-    if row["status"] != "done":
-        raise HTTPException(409, f"job {body.job_id} is {row['status']}; identification "
-                                 "needs a finished (done) sweep")
-    records = []
-    for p in db.job_points(con, body.job_id):
-        rec = {name: p[name] for name in SWEPT}
-        rec["status"] = p["status"]
-        rec.update(db.loads(p["metrics_json"]) or {} if p["status"] == "ok" else {})
-        records.append(rec)
-    measurement = {k: (v["value"], v["sigma"])
-                   for k, v in body.measurement.model_dump().items() if v is not None}
-    try:
-        table = SweepTable.from_records(json.loads(row["spec_json"]), records)
-        est = identify(table, measurement, body.thickness, body.pmax)
-    except IdentifyError as err:
-        loc = ["body", "measurement", err.field] if err.field in MEASURABLE \
-            else ["body", err.field]
-        raise problem_422(loc, err.field, f"{err.field}: {err}",
-                           "out_of_range" if "outside" in str(err) else "value_error") from None
-    return {"job_id": body.job_id, **est.to_dict()}
-
-# -- schema and docs (behind the token too, when one is set) -------------------------------
-
-def openapi_json(request: Request):
-    return JSONResponse(request.app.openapi())
-
-def docs():
-    return get_swagger_ui_html(openapi_url="/openapi.json", title="airpuff API")
 
 
 def make_submit(SweepRequest):  # noqa: N803 - a model class
@@ -200,6 +111,105 @@ def make_submit(SweepRequest):  # noqa: N803 - a model class
         return {"id": job_id, "status": "queued", "points_total": len(rows)}
 
     return submit
+
+
+def list_sweeps(limit: int = Query(100, ge=1, le=1000, description="jobs per page"),
+                offset: int = Query(0, ge=0, le=2**62, description="jobs to skip"),
+                status_: Optional[schemas.JobStatusName] = Query(
+                    None, alias="status", description="only jobs with this status"),
+                con: sqlite3.Connection = Depends(get_db)):
+    rows = db.list_jobs(con, limit, offset, status_)
+    return {"jobs": [job_info(r) for r in rows], "total": db.count_jobs(con, status_)}
+
+
+def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
+    return job_info(job_or_404(con, job_id))
+
+
+def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
+    row = job_or_404(con, job_id)
+    points = []
+    for p in db.job_points(con, job_id):
+        rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
+        for name in SWEPT:
+            rec[name] = p[name]
+        rec["status"] = p["status"]
+        rec["message"] = p["message"]
+        rec["reused"] = bool(p["reused"])
+        m = db.loads(p["metrics_json"]) if p["status"] == "ok" else None
+        for name in METRICS:
+            rec[name] = (m or {}).get(name)
+        points.append(rec)
+    return {"id": job_id, "status": row["status"], "units": schemas.units(), "points": points}
+
+
+def get_dataset(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
+    settings = request.app.state.settings
+    row = job_or_404(con, job_id)
+    if row["status"] != "done":
+        raise HTTPException(409, f"job {job_id} is {row['status']}; its dataset exists once "
+                                 "it is done")
+    # The path comes from the job's own id as stored in the database, never from the request,
+    # and must lie inside this job's folder.
+    path = settings.job_dataset(row["id"]).resolve()
+    job_dir = (settings.jobs_dir / row["id"]).resolve()
+    if job_dir not in path.parents or not path.is_file():
+        raise HTTPException(404, f"the dataset of job {job_id} is missing on the server")
+    return FileResponse(path, media_type="application/x-netcdf",
+                        filename=f"airpuff-sweep-{row['id']}.nc")
+
+
+def cancel(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
+    row = job_or_404(con, job_id)
+    if row["status"] in ("queued", "running"):
+        db.cancel_job(con, job_id)
+        runner = request.app.state.runner
+        if runner is not None:
+            runner.wake()
+        row = job_or_404(con, job_id)
+    if row["status"] in ("done", "failed"):
+        raise HTTPException(409, f"job {job_id} already ended ({row['status']})")
+    return job_info(row)
+
+
+def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):
+    # Interpolation only (milliseconds): the metrics come from the job database, so this
+    # handler never opens a netCDF file and never runs the solver.
+    if body.refine:
+        raise problem_422(["body", "refine"], "refine",
+                          "refine: solver refinement is not offered over HTTP; accepted: "
+                          "false (use `airpuff identify --refine` on the downloaded dataset)")
+    row = job_or_404(con, body.job_id)
+    if row["status"] != "done":
+        raise HTTPException(409, f"job {body.job_id} is {row['status']}; identification "
+                                 "needs a finished (done) sweep")
+    records = []
+    for p in db.job_points(con, body.job_id):
+        rec = {name: p[name] for name in SWEPT}
+        rec["status"] = p["status"]
+        rec.update(db.loads(p["metrics_json"]) or {} if p["status"] == "ok" else {})
+        records.append(rec)
+    measurement = {k: (v["value"], v["sigma"])
+                   for k, v in body.measurement.model_dump().items() if v is not None}
+    try:
+        table = SweepTable.from_records(json.loads(row["spec_json"]), records)
+        est = identify(table, measurement, body.thickness, body.pmax)
+    except IdentifyError as err:
+        loc = ["body", "measurement", err.field] if err.field in MEASURABLE \
+            else ["body", err.field]
+        raise problem_422(loc, err.field, f"{err.field}: {err}",
+                          "out_of_range" if "outside" in str(err) else "value_error") from None
+    return {"job_id": body.job_id, **est.to_dict()}
+
+
+# -- schema and docs (behind the token too, when one is set) ---------------------------------------
+
+def openapi_json(request: Request):
+    return JSONResponse(request.app.openapi())
+
+
+def docs():
+    return get_swagger_ui_html(openapi_url="/openapi.json", title="airpuff API")
 
 
 def build_router(settings: Settings, SweepRequest, auth) -> APIRouter:  # noqa: N803 - a model
