@@ -13,8 +13,9 @@ Fluid compression energy per unit mass, for the equation of state (5) with B = r
 import numpy as np
 from numba import njit
 
-from .fluid import AXIS, INTERIOR
+from .fluid import viscous_laplacian
 from .membrane import add_pressure_loads, air_jet
+from .nodes import AXIS, INTERIOR
 
 
 @njit(cache=True)
@@ -56,16 +57,10 @@ def fluid_dissipation_power(kind, x, vx_n, vx_avg, vy_avg, dvx, dvy, rho_n, mu, 
     hyper = 0.0
     for i in range(x.shape[0]):
         k = kind[i]
-        if k == INTERIOR:
-            xi = x[i]
-            lap_vx = dvx[i, 2] + dvx[i, 4] + dvx[i, 0] / xi - vx_n[i] / (xi * xi)
-            lap_vy = dvy[i, 2] + dvy[i, 4] + dvy[i, 0] / xi
+        if k == INTERIOR or k == AXIS:  # the nodes that integrate momentum
+            lap_vx, lap_vy = viscous_laplacian(i, k, x, vx_n, dvx, dvy)
             visc -= mass[i] * mu / rho_n[i] * (vx_avg[i] * lap_vx + vy_avg[i] * lap_vy)
             hyper -= mass[i] * (vx_avg[i] * hv_vx[i] + vy_avg[i] * hv_vy[i])
-        elif k == AXIS:
-            lap_vy = 2.0 * dvy[i, 2] + dvy[i, 4]
-            visc -= mass[i] * mu / rho_n[i] * vy_avg[i] * lap_vy
-            hyper -= mass[i] * vy_avg[i] * hv_vy[i]
         hyper -= mass[i] * p[i] / (rho_n[i] * rho_n[i]) * hv_rho[i]
     return visc, hyper
 
