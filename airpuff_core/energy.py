@@ -66,7 +66,6 @@ class EnergyBudget:
         self._reference = self._stored(X, Y, VX, VY, vx, vy, rho, c, history)
         n = X.shape[0]
         self._loads = tuple(np.empty(n) for _ in range(4))
-        self._q = (np.empty(n), np.empty(n))
 
     def account_step(self, dt, jet_n, jet_new, X0, Y0, X1, Y1, history0, history1, kind, x,
                      vx0, vy0, vx1, vy1, dv0, rho_n, mu, hv_vx, hv_vy, hv_rho, p_n, c_old, c_new,
@@ -77,16 +76,12 @@ class EnergyBudget:
         derivatives dv0 and density rho_n at t^n, the hyperviscous rates, the pressure p_n at t^n
         [Pa], the sound speeds of the last and this step [m/s], and the work on the walls [J].
         """
-        q0, q1 = self._q
-        np.negative(jet_n, out=q0)
-        np.negative(jet_new, out=q1)
-        self.jet_work += pressure_load_work(X0, Y0, X1, Y1, q0, q1, *self._loads)
+        # the jet presses from outside: its loads are those of the net inside pressure -p_jet
+        self.jet_work -= pressure_load_work(X0, Y0, X1, Y1, jet_n, jet_new, *self._loads)
         if self.viscoelastic is not None:
             self.overstress_work += self.viscoelastic.overstress_work(X0, Y0, X1, Y1, history0,
                                                                      history1)
-        vx_avg = 0.5 * (vx0 + vx1)
-        vy_avg = 0.5 * (vy0 + vy1)
-        visc, hyper = fluid_dissipation_power(kind, x, vx0, vx_avg, vy_avg, dv0[0], dv0[1], rho_n,
+        visc, hyper = fluid_dissipation_power(kind, x, vx0, vy0, vx1, vy1, dv0[0], dv0[1], rho_n,
                                               mu, hv_vx, hv_vy, self.mass, p_n, hv_rho)
         self.fluid_viscous += visc * dt
         self.fluid_hyperviscous += hyper * dt

@@ -13,8 +13,11 @@ import pytest
 from airpuff_core import RunParams, simulate
 from airpuff_core.kernels.shell import shell_internal_forces, shell_work, work_rows
 from airpuff_core.kernels.viscoelastic import relaxation_function
+from airpuff_core.params import SWEPT
 from airpuff_core.shell import NO_HISTORY, build_shell
 from airpuff_core.viscoelastic import ViscoelasticHistory
+from api.schemas import sweep_request_model
+from sweep.grid import SweepSpec
 
 P0 = 16 * 133.322  # Pa
 R = 7e-3  # m
@@ -94,3 +97,20 @@ def test_energy_budget_of_a_full_run_closes():
     assert np.max(np.abs(h["energy_residual"])) < 0.02 * w_max
     assert h["tissue_dissipation"][-1] > 0.5 * h["jet_work"][-1] > 0
     assert np.min(h["tissue_dissipation"]) > -1e-3 * w_max
+
+
+def test_clinical_preset_and_explicit_options():
+    """The clinical preset sets the shell, the compliant globe and Kling et al.'s viscoelastic
+    parameters; explicit options override it, also through the HTTP request model (whose
+    omitted preset parameters stay None, so that the preset fills them)."""
+    p = RunParams(model="clinical")
+    assert (p.cornea, p.globe, p.ve_g, p.ve_tau) == ("shell", "compliant", 0.3, 10.0)
+    paper = RunParams()
+    assert (paper.cornea, paper.globe, paper.ve_g) == ("membrane", "rigid", 0.0)
+    assert RunParams(model="clinical", ve_g=0.1).ve_g == 0.1
+    assert RunParams(model="clinical").replace(model="paper").ve_g == 0.0
+    body = sweep_request_model(10)(E0=[0.5], IOP=[16.0], model="clinical", globe="rigid")
+    values = body.model_dump()
+    axes = {k: values.pop(k) for k in SWEPT}
+    point = SweepSpec(**axes, options=values).validate().validated_points()[0]
+    assert (point.cornea, point.globe, point.ve_g, point.ve_tau) == ("shell", "rigid", 0.3, 10.0)

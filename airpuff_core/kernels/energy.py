@@ -40,27 +40,28 @@ def compression_energy(mass, rho, rho0, p0, c, gamma):
 
 
 @njit(cache=True)
-def fluid_dissipation_power(kind, x, vx_n, vx_avg, vy_avg, dvx, dvy, rho_n, mu, hv_vx, hv_vy, mass,
-                            p, hv_rho):
+def fluid_dissipation_power(kind, x, vx_n, vy_n, vx_new, vy_new, dvx, dvy, rho_n, mu, hv_vx, hv_vy,
+                            mass, p, hv_rho):
     """Rate [W] at which the viscous and hyperviscous terms remove mechanical energy from the
-    fluid in one step, with the step's mean velocities (vx_avg, vy_avg) [m/s]: the update of
+    fluid in one step, with the step's mean velocities v_avg = (v^n + v^{n+1}) / 2 [m/s]: the update of
     the nodes that integrate momentum is v^{n+1} - v^n = dt (a_p + a_visc + a_hv), so
     m (v^{n+1} + v^n)/2 . dt a is exactly each term's share of the change of kinetic energy.
 
         D = - sum m v_avg . (mu lap v / rho^n + HV(v))  - sum m p / rho^2 HV(rho)
 
     (the last term: the hyperviscous change of density, d(m e)/drho = m p / rho^2).  ``dvx``,
-    ``dvy`` are the derivative vectors of the velocity at t^n and vx_n its x component (the
-    ones the update used).
+    ``dvy`` are the derivative vectors of the velocity at t^n (the ones the update used).
     Returns (viscous, hyperviscous) dissipation rates."""
     visc = 0.0
     hyper = 0.0
     for i in range(x.shape[0]):
         k = kind[i]
         if k == INTERIOR or k == AXIS:  # the nodes that integrate momentum
+            vx_avg = 0.5 * (vx_n[i] + vx_new[i])
+            vy_avg = 0.5 * (vy_n[i] + vy_new[i])
             lap_vx, lap_vy = viscous_laplacian(i, k, x, vx_n, dvx, dvy)
-            visc -= mass[i] * mu / rho_n[i] * (vx_avg[i] * lap_vx + vy_avg[i] * lap_vy)
-            hyper -= mass[i] * (vx_avg[i] * hv_vx[i] + vy_avg[i] * hv_vy[i])
+            visc -= mass[i] * mu / rho_n[i] * (vx_avg * lap_vx + vy_avg * lap_vy)
+            hyper -= mass[i] * (vx_avg * hv_vx[i] + vy_avg * hv_vy[i])
         hyper -= mass[i] * p[i] / (rho_n[i] * rho_n[i]) * hv_rho[i]
     return visc, hyper
 
