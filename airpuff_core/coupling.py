@@ -417,13 +417,7 @@ class CoupledModel:
         jet_pressures(self.t, phi, self.jet, jet_n)
         jet_pressures(self.t + dt, phi, self.jet, jet_new)
         tait_pressure(self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
-        globe = 0.0
-        if self.wall is not None:
-            p_wall_n = self.wall.mean_pressure(p_n)
-            tait_pressure(w["rho_new"], si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
-            p_wall = 0.5 * (p_wall_n + self.wall.mean_pressure(p_n))
-            globe = p_wall * self.wall.area * (self._wall_trial[0] - self.wall.displacement)
-            tait_pressure(self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
+        globe = 0.0 if self.wall is None else self._globe_work()
         ve = self.viscoelastic
         self.budget.account_step(dt, jet_n, jet_new, self.X, self.Y, X, Y, self._overstress(),
                                  None if ve is None else ve.trial_overstress, self.kind, self.x,
@@ -431,6 +425,19 @@ class CoupledModel:
                                  si.mu, w["hv_vx"], w["hv_vy"], w["hv_rho"], p_n, self._c_last,
                                  self.c, globe)
         self._c_last = self.c
+
+    def _globe_work(self):
+        """Work [J] of the fluid on the compliant walls over the step just coupled: the mean wall
+        pressure of its two ends times the volume the walls gave way by."""
+        si, wall = self.si, self.wall
+        p_wall = np.empty(wall.nodes.shape[0])
+        tait_pressure_at(wall.nodes, self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma,
+                         p_wall)
+        p_start = wall.mean_pressure(p_wall)
+        tait_pressure_at(wall.nodes, self._work["rho_new"], si.rho_fluid, si.p0_Pa, self.c,
+                         si.tait_gamma, p_wall)
+        p_end = wall.mean_pressure(p_wall)
+        return 0.5 * (p_start + p_end) * wall.area * (self._wall_trial[0] - wall.displacement)
 
     def energy_terms(self):
         """The energy budget's terms at the current state [uJ] (energy.py)."""

@@ -146,9 +146,10 @@ class CompliantWall:
         vx[self.nodes] = 0.0
         vy[self.nodes] = -self.weight * speed
 
-    def mean_pressure(self, p_nodes):
-        """Mean pressure [Pa] on the walls, weighted by the volume each node sweeps."""
-        return float(np.dot(self.pressure_weight, p_nodes[self.nodes]))
+    def mean_pressure(self, p_wall):
+        """Mean pressure [Pa] on the walls from the pressures ``p_wall`` [Pa] of the wall nodes
+        (in the order of ``nodes``), weighted by the volume each node sweeps."""
+        return float(np.dot(self.pressure_weight, p_wall))
 
 
 def _closed_polygon(xc, yc, y_axis):
