@@ -439,6 +439,10 @@ class CoupledModel:
         p_end = wall.mean_pressure(p_wall)
         return 0.5 * (p_start + p_end) * wall.area * (self._wall_trial[0] - wall.displacement)
 
+    def apex_moment(self):
+        """Meridional bending moment at the apex [N m/m], with its viscoelastic overstress."""
+        return self.cornea_model.apex_moment(self.X, self.Y, self._overstress())
+
     def energy_terms(self):
         """The energy budget's terms at the current state [uJ] (energy.py)."""
         return self.budget.terms(self.X, self.Y, self.VX, self.VY, self.vx, self.vy, self.rho,

@@ -40,6 +40,7 @@ def probe(model: CoupledModel) -> dict[str, float]:
         "chamber_volume": model.chamber_volume() * 1e9,
         "wall_volume_change": model.wall_volume_change() * 1e9,
         "globe_pressure": model.globe_pressure() / MMHG_PA,
+        "apex_bending_moment": model.apex_moment() * 1e3,
         **model.energy_terms(),
         "coupling_iterations": float(model.last_iterations),
         "sound_speed": model.c,

@@ -49,6 +49,8 @@ HISTORIES: dict[str, tuple[str, str]] = {
                            "(0 with globe=rigid)"),
     "globe_pressure": ("mmHg", "pressure of the globe's pressure-volume law for the volume the "
                        "cornea has pushed in (the IOP with globe=rigid)"),
+    "apex_bending_moment": ("mN", "meridional bending moment M_s at the apex, per unit length "
+                            "(N m/m; 0 for the membrane)"),
     # the energy budget, cumulative from t = 0 (energy.py)
     "jet_work": ("uJ", "work of the air jet on the cornea"),
     "kinetic_energy": ("uJ", "kinetic energy of cornea and fluid, change since t = 0"),

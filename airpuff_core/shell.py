@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .kernels.membrane import add_pressure_loads, max_wave_speed
-from .kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell,
+from .kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell, bending_moments,
                             max_bending_frequency, shell_energy, shell_internal_forces,
-                            shell_work)
+                            shell_strains, shell_work, work_rows)
 from .membrane import MEMBRANE_SAFETY, MembraneModel, build_membrane
 
 # the history arguments of the shell kernels without viscoelasticity (not read)
@@ -92,6 +92,19 @@ class ShellModel(MembraneModel):
                               self.nu, self.k, self.D, self.work, Fx, Fy, 0, *NO_HISTORY)
         add_pressure_loads(X, Y, q, Fx, Fy)
         return Fx, Fy
+
+    def apex_moment(self, X, Y, overstress=None):
+        """Meridional bending moment M_s at the apex [N m/m] at positions (X, Y) [m]: the bending
+        law's, plus the viscoelastic overstress (``ViscoelasticHistory.overstress``) if given;
+        0 for the membrane."""
+        if self.D == 0.0:
+            return 0.0
+        E1, E2, psi, _, _, _, Ks, Kt, Ms, Mt = work_rows(self.work, self.n)
+        shell_strains(X, Y, self.L0, self.S0, self.psi_ref, self.dual_length, self.x_ref,
+                      self.limbus, self.D, E1, E2, psi, Ks, Kt)
+        bending_moments(Ks, Kt, self.D, self.nu, Ms, Mt)
+        extra = 0.0 if overstress is None else float(overstress[:, 2, 0].sum())
+        return float(Ms[0]) + extra
 
     def energy(self, X, Y):
         """(membrane, bending) elastic energy [J] at positions (X, Y) [m]."""
