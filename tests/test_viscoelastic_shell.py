@@ -114,3 +114,19 @@ def test_clinical_preset_and_explicit_options():
     axes = {k: values.pop(k) for k in SWEPT}
     point = SweepSpec(**axes, options=values).validate().validated_points()[0]
     assert (point.cornea, point.globe, point.ve_g, point.ve_tau) == ("shell", "rigid", 0.3, 10.0)
+
+
+def test_apex_moment_is_the_bending_law_at_the_apex():
+    """M_s at the apex = D (1 + nu) K with K = 2 (psi_0 - psi_ref_0) / L0_0 (symmetry: K_s =
+    K_theta there), plus the stored overstresses; 0 on the homothetic rest shape."""
+    m = _shell()
+    X0, Y0 = m.R_ref * np.sin(m.phi), m.R_ref * np.cos(m.phi)
+    assert abs(m.apex_moment(1.01 * X0, 1.01 * Y0)) < 1e-12 * m.D / m.R_ref
+    Y1 = Y0.copy()
+    Y1[0] -= 1e-5  # flatten the apex
+    psi0 = math.atan2(Y1[0] - Y1[1], X0[1] - X0[0])
+    K = 2.0 * (psi0 - m.psi_ref[0]) / m.dual_length[0]
+    assert m.apex_moment(X0, Y1) == pytest.approx(m.D * (1 + m.nu) * K, rel=1e-12)
+    q = np.zeros((2, 4, m.n))
+    q[:, 2, 0] = (1e-4, 2e-4)
+    assert m.apex_moment(X0, Y1, q) == pytest.approx(m.D * (1 + m.nu) * K + 3e-4, rel=1e-12)
