@@ -10,11 +10,9 @@ only the runner thread uses it).
 
 import json
 import logging
-import secrets
 import sqlite3
-import uuid
 from contextlib import asynccontextmanager
-from typing import Any, Iterator, Optional
+from typing import Iterator, Optional
 
 from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response, status
 from fastapi.encoders import jsonable_encoder
@@ -26,10 +24,10 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from airpuff_core import __version__
-from airpuff_core.params import PARAMETERS, SWEPT, ParameterError
-from airpuff_core.result import METRICS
+from airpuff_core.params import PARAMETERS, SWEPT
 
-from . import db, schemas
+from . import auth, db, jobs, pages, schemas
+from .jobs import problem_422 as _problem_422
 from .settings import Settings
 
 log = logging.getLogger("airpuff.api")
@@ -73,21 +71,21 @@ def _request_keys() -> list[str]:
     return _REQUEST_KEYS
 
 
-def _problem_422(loc: list, field: str, msg: str, typ: str = "value_error") -> RequestValidationError:
-    return RequestValidationError([{"loc": loc, "field": field, "msg": msg, "type": typ}])
-
-
 # -- auth -----------------------------------------------------------------------------------------
 
 def _auth_dependency(settings: Settings):
     if not settings.token:
         return None
     bearer = HTTPBearer(auto_error=False, description="the value of AIRPUFF_API_TOKEN")
-    expected = settings.token.encode()
+    token = settings.token
 
-    def require_token(cred: Optional[HTTPAuthorizationCredentials] = Depends(bearer)) -> None:
-        ok = (cred is not None and cred.scheme.lower() == "bearer"
-              and secrets.compare_digest(cred.credentials.encode(), expected))
+    def require_token(request: Request,
+                      cred: Optional[HTTPAuthorizationCredentials] = Depends(bearer)) -> None:
+        ok = cred is not None and cred.scheme.lower() == "bearer" and auth.token_matches(
+            cred.credentials, token)
+        # The pages' session cookie opens the read-only endpoints (their links and the progress
+        # refresh); changing state through the API needs the bearer header (see api.auth).
+        ok = ok or (request.method in auth.SAFE_METHODS and auth.session_ok(request, token))
         if not ok:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing or wrong bearer token",
                                 headers={"WWW-Authenticate": "Bearer"})
@@ -216,21 +214,6 @@ def create_app(settings: Settings) -> FastAPI:
             raise HTTPException(404, f"no sweep job with id {job_id!r}")
         return row
 
-    def job_info(row: sqlite3.Row) -> dict[str, Any]:
-        spec = json.loads(row["spec_json"])
-        request = {name: spec[name] for name in SWEPT}
-        request.update(spec.get("options", {}))
-        base = f"/sweeps/{row['id']}"
-        return {
-            "id": row["id"], "status": row["status"], "points_total": row["n_points"],
-            "points_done": row["n_ok"], "points_failed": row["n_failed"],
-            "points_reused": row["n_reused"],
-            "created_at": db.iso(row["created_at"]), "started_at": db.iso(row["started_at"]),
-            "finished_at": db.iso(row["finished_at"]), "error": row["error"],
-            "request": request,
-            "links": {"self": base, "metrics": base + "/metrics", "dataset": base + "/dataset"},
-        }
-
     # -- routes ------------------------------------------------------------------------------
 
     @app.get("/health", response_model=schemas.Health, tags=["service"],
@@ -247,33 +230,12 @@ def create_app(settings: Settings) -> FastAPI:
               summary="Submit a sweep; answers 202 with the job id and a Location header")
     def submit(body: SweepRequest, response: Response, request: Request,  # type: ignore[valid-type]
                con: sqlite3.Connection = Depends(get_db)):
-        from sweep.grid import SweepSpec
-        from sweep.store import point_key
-
-        values = body.model_dump()
-        axes = {name: values.pop(name) for name in SWEPT}
-        n = 1
-        for name in SWEPT:
-            n *= len(axes[name])
-        if n > settings.max_points:
-            shape = " x ".join(str(len(axes[k])) for k in SWEPT)
-            raise _problem_422(
-                ["body"], "E0 x IOP x thickness x pmax",
-                f"E0 x IOP x thickness x pmax: the grid has {shape} = {n} points; "
-                f"accepted: at most {settings.max_points} points", "grid_too_large")
-        try:
-            spec = SweepSpec(**axes, options=values).validate()
-            points = spec.points()
-        except ParameterError as err:
-            raise _problem_422(["body", err.name], err.name, str(err)) from None
-        job_id = uuid.uuid4().hex
-        rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
-        db.insert_job(con, job_id, spec.to_dict(), rows)
+        job_id, n_points = jobs.create_job(con, settings, body.model_dump())
         runner = request.app.state.runner
         if runner is not None:
             runner.wake()
         response.headers["Location"] = f"/sweeps/{job_id}"
-        return {"id": job_id, "status": "queued", "points_total": len(rows)}
+        return {"id": job_id, "status": "queued", "points_total": n_points}
 
     @app.get("/sweeps", response_model=schemas.JobList, tags=["sweeps"], dependencies=deps,
              responses={**invalid, **unauthorized}, summary="List jobs, newest first")
@@ -283,31 +245,20 @@ def create_app(settings: Settings) -> FastAPI:
                         None, alias="status", description="only jobs with this status"),
                     con: sqlite3.Connection = Depends(get_db)):
         rows = db.list_jobs(con, limit, offset, status_)
-        return {"jobs": [job_info(r) for r in rows], "total": db.count_jobs(con, status_)}
+        return {"jobs": [jobs.job_info(r) for r in rows], "total": db.count_jobs(con, status_)}
 
     @app.get("/sweeps/{job_id}", response_model=schemas.JobInfo, tags=["sweeps"],
              dependencies=deps, responses={**not_found, **unauthorized},
              summary="Status of a job: points total, done and failed, timestamps, error")
     def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-        return job_info(job_or_404(con, job_id))
+        return jobs.job_info(job_or_404(con, job_id))
 
     @app.get("/sweeps/{job_id}/metrics", response_model=schemas.Metrics, tags=["sweeps"],
              dependencies=deps, responses={**not_found, **unauthorized},
              summary="ORA and Corvis-style metrics of every point (null where missing)")
     def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
         row = job_or_404(con, job_id)
-        points = []
-        for p in db.job_points(con, job_id):
-            rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
-            for name in SWEPT:
-                rec[name] = p[name]
-            rec["status"] = p["status"]
-            rec["message"] = p["message"]
-            rec["reused"] = bool(p["reused"])
-            m = db.loads(p["metrics_json"]) if p["status"] == "ok" else None
-            for name in METRICS:
-                rec[name] = (m or {}).get(name)
-            points.append(rec)
+        points = jobs.point_records(con, job_id)
         return {"id": job_id, "status": row["status"], "units": schemas.units(), "points": points}
 
     @app.get("/sweeps/{job_id}/dataset", tags=["sweeps"], dependencies=deps,
@@ -346,7 +297,7 @@ def create_app(settings: Settings) -> FastAPI:
             row = job_or_404(con, job_id)
         if row["status"] in ("done", "failed"):
             raise HTTPException(409, f"job {job_id} already ended ({row['status']})")
-        return job_info(row)
+        return jobs.job_info(row)
 
     @app.post("/identify", response_model=schemas.IdentifyResult, tags=["identify"],
               dependencies=deps,
@@ -384,6 +335,8 @@ def create_app(settings: Settings) -> FastAPI:
             raise _problem_422(loc, err.field, f"{err.field}: {err}",
                                "out_of_range" if "outside" in str(err) else "value_error") from None
         return {"job_id": body.job_id, **est.to_dict()}
+
+    app.include_router(pages.router(settings))
 
     # -- schema and docs (behind the token too, when one is set) -------------------------------
 
