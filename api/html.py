@@ -40,14 +40,23 @@ button{font:inherit;padding:.3em 1em;margin-top:1em;cursor:pointer}
 header button{margin:0;padding:.1em .7em}
 """
 
-# Reload the page when the watched JSON changes (a point finished, the job ended).  The
+# Reload the page when the state of its jobs in the watched JSON (``GET /sweeps/{id}`` or
+# ``GET /sweeps``) differs from the state the page was rendered with (``watch_state``).  The
 # request carries the session cookie, which the API accepts for GET (api.auth).
 REFRESH_SCRIPT = """
 <script>
-(function(){var url=document.body.dataset.watch,last=null;if(!url)return;
-setInterval(function(){fetch(url,{credentials:'same-origin'}).then(function(r){return r.text()})
-.then(function(t){if(last!==null&&t!==last)location.reload();last=t}).catch(function(){})},2000)})();
+(function(){var b=document.body.dataset;if(!b.watch)return;
+function state(j){return (j.jobs||[j]).map(function(x){return [x.id,x.status,x.points_done,
+x.points_failed].join(':')}).join(',')}
+setInterval(function(){fetch(b.watch,{credentials:'same-origin'}).then(function(r){return r.json()})
+.then(function(j){if(state(j)!==b.state)location.reload()}).catch(function(){})},2000)})();
 </script>"""
+
+
+def watch_state(jobs: Iterable[dict[str, Any]]) -> str:
+    """The state the refresh script compares with (same text as its ``state`` function)."""
+    return ",".join(f"{j['id']}:{j['status']}:{j['points_done']}:{j['points_failed']}"
+                    for j in jobs)
 
 
 def esc(value: Any) -> str:
@@ -96,12 +105,14 @@ def table(headers: Iterable[str], rows: Iterable[Iterable[str]], numeric: set[in
     return f"<table{cls}><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def page(title: str, body: str, *, watch: str | None = None, logout: bool = False) -> str:
+def page(title: str, body: str, *, watch: tuple[str, str] | None = None,
+         logout: bool = False) -> str:
     """A whole page: header with navigation, ``body`` (HTML), and the refresh script when
-    ``watch`` names a JSON URL to follow."""
+    ``watch`` is (JSON URL to follow, ``watch_state`` of the jobs as rendered)."""
     logout_form = ('<form method="post" action="/logout"><button type="submit">log out</button>'
                    "</form>") if logout else ""
-    watch_attr = f' data-watch="{esc(watch)}"' if watch else ""
+    watch_attr = (f' data-watch="{esc(watch[0])}" data-state="{esc(watch[1])}"'
+                  if watch else "")
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">'
             f"<title>{esc(title)} - airpuff</title><style>{CSS}</style></head>"

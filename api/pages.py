@@ -28,7 +28,7 @@ from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, SWEPT
 from airpuff_core.result import METRICS
 
 from . import auth, db, figures, jobs, schemas, sweep_form
-from .html import badge, esc, number, page, progress, table, when
+from .html import badge, esc, number, page, progress, table, watch_state, when
 from .settings import Settings
 
 ACTIVE = ("queued", "running")
@@ -65,7 +65,7 @@ def router(settings: Settings) -> APIRouter:
     def connect() -> closing[sqlite3.Connection]:
         return closing(db.connect(settings.db_path))
 
-    def html(title: str, body: str, status_code: int = 200, watch: str | None = None,
+    def html(title: str, body: str, status_code: int = 200, watch: tuple[str, str] | None = None,
              headers: dict[str, str] | None = None) -> HTMLResponse:
         return HTMLResponse(page(title, body, watch=watch, logout=bool(token)), status_code,
                             headers={"Cache-Control": "no-store", **(headers or {})})
@@ -145,7 +145,8 @@ def router(settings: Settings) -> APIRouter:
                                          if cells else '<p>No jobs yet. <a href="/new">Submit a '
                                                        'sweep</a>.</p>') + shown)
         active = any(job["status"] in ACTIVE for job in infos)
-        return html("jobs", body, watch=f"/sweeps?limit={LIST_LIMIT}" if active else None)
+        watch = (f"/sweeps?limit={LIST_LIMIT}", watch_state(infos)) if active else None
+        return html("jobs", body, watch=watch)
 
     @r.get("/jobs/{job_id}", response_class=HTMLResponse)
     def job_page(job_id: str, point: int | None = None):
@@ -157,7 +158,7 @@ def router(settings: Settings) -> APIRouter:
             records = jobs.point_records(con, job_id)
         body = (_job_header(job) + _figures(job, records, point) + _metrics_table(records)
                 + _failures(records) + _request_table(job["request"]))
-        watch = f"/sweeps/{job['id']}" if job["status"] in ACTIVE else None
+        watch = (f"/sweeps/{job['id']}", watch_state([job])) if job["status"] in ACTIVE else None
         return html(f"job {job['id'][:8]}", body, watch=watch)
 
     @r.get("/jobs/{job_id}/figures/{name}.png")
