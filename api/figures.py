@@ -26,6 +26,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import textwrap
 import threading
 from pathlib import Path
 from typing import Any
@@ -123,8 +124,8 @@ def draw(name: str, records: list[dict[str, Any]]) -> bytes:
             ax.legend(fontsize="x-small")
         else:
             draw_heatmap(fig, ax, iop, e0, values, _label(metric))
-        ax.set_title(f"{metric}: {METRICS[metric][1]}\nthickness {thickness:g} mm, "
-                     f"pmax {pmax:g} kPa", fontsize=8)
+        ax.set_title(textwrap.fill(f"{metric}: {METRICS[metric][1]}", 52)
+                     + f"\nthickness {thickness:g} mm, pmax {pmax:g} kPa", fontsize=8)
         return _png(fig)
 
 

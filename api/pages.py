@@ -148,14 +148,20 @@ def router(settings: Settings) -> APIRouter:
         watch = (f"/sweeps?limit={LIST_LIMIT}", watch_state(infos)) if active else None
         return html("jobs", body, watch=watch)
 
-    @r.get("/jobs/{job_id}", response_class=HTMLResponse)
-    def job_page(job_id: str, point: int | None = None):
+    def load(job_id: str) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
+        """(job info, point records) of a job, or None if there is no such job."""
         with connect() as con:
             row = db.get_job(con, job_id)
             if row is None:
-                return not_found(job_id)
-            job = jobs.job_info(row)
-            records = jobs.point_records(con, job_id)
+                return None
+            return jobs.job_info(row), jobs.point_records(con, job_id)
+
+    @r.get("/jobs/{job_id}", response_class=HTMLResponse)
+    def job_page(job_id: str, point: int | None = None):
+        loaded = load(job_id)
+        if loaded is None:
+            return not_found(job_id)
+        job, records = loaded
         body = (_job_header(job) + _figures(job, records, point) + _metrics_table(records)
                 + _failures(records) + _request_table(job["request"]))
         watch = (f"/sweeps/{job['id']}", watch_state([job])) if job["status"] in ACTIVE else None
@@ -163,12 +169,10 @@ def router(settings: Settings) -> APIRouter:
 
     @r.get("/jobs/{job_id}/figures/{name}.png")
     def job_figure(job_id: str, name: str):
-        with connect() as con:
-            row = db.get_job(con, job_id)
-            if row is None:
-                return not_found(job_id)
-            job = jobs.job_info(row)
-            records = jobs.point_records(con, job_id)
+        loaded = load(job_id)
+        if loaded is None:
+            return not_found(job_id)
+        job, records = loaded
         try:
             data, final = figures.job_figure(settings, job, records, name)
         except figures.FigureUnavailable:
@@ -320,7 +324,7 @@ def _metrics_table(records: list[dict[str, Any]]) -> str:
                                                       + len(METRICS)))
     more = (f'<p class="muted">First {TABLE_LIMIT} of {len(records)} points; the metrics JSON '
             f"has them all.</p>" if len(records) > TABLE_LIMIT else "")
-    return ('<h2 id="metrics">Metrics of the points</h2><div style="overflow-x:auto">'
+    return ('<h2 id="metrics">Metrics of the points</h2><div class="points" style="overflow-x:auto">'
             + table(headers, rows, numeric, nowrap=True) + "</div>" + more)
 
 

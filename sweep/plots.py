@@ -59,8 +59,14 @@ def draw_heatmap(fig, ax, iop, e0, values: np.ndarray, label: str) -> None:
         for i, y in enumerate(e0):
             for j, x in enumerate(iop):
                 if not values.mask[i, j]:
+                    r, g, b, _ = mesh.cmap(mesh.norm(values[i, j]))
+                    light = 0.299 * r + 0.587 * g + 0.114 * b > 0.5  # perceived brightness
                     ax.text(x, y, f"{values[i, j]:.3g}", ha="center", va="center", fontsize=7,
-                            color="white", path_effects=_outline())
+                            color="black" if light else "white")
+    if iop.size <= 12:
+        ax.set_xticks(iop)
+    if e0.size <= 12:
+        ax.set_yticks(e0)
     ax.set_xlabel("IOP [mmHg]")
     ax.set_ylabel("E0 [MPa]")
 
@@ -71,12 +77,6 @@ def _cell_edges(centres: np.ndarray) -> np.ndarray:
         return np.array([centres[0] - 0.5, centres[0] + 0.5])
     mid = 0.5 * (centres[1:] + centres[:-1])
     return np.concatenate([[2 * centres[0] - mid[0]], mid, [2 * centres[-1] - mid[-1]]])
-
-
-def _outline():
-    from matplotlib import patheffects
-
-    return [patheffects.withStroke(linewidth=1.5, foreground="black")]
 
 
 def plot_metrics_vs_iop(ds, path, thickness=None, pmax=None) -> Path:
