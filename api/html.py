@@ -23,7 +23,7 @@ th,td{border-bottom:1px solid #d0d7de;padding:.25em .6em;text-align:left;vertica
 th{background:#f6f8fa;font-weight:600}table.nowrap td{white-space:nowrap}
 .points table{font-size:.9em}.points th,.points td{padding:.2em .35em}td.num{text-align:right;font-variant-numeric:tabular-nums}
 .badge{display:inline-block;color:#fff;border-radius:1em;padding:0 .6em;font-size:.9em}
-.bar{display:inline-block;width:11em;height:.8em;background:#eaeef2;border-radius:.4em;
+.bar{display:inline-block;width:8em;height:.8em;background:#eaeef2;border-radius:.4em;
 overflow:hidden;vertical-align:middle;margin-right:.5em}
 .bar span{display:block;height:100%;float:left}.bar .ok{background:#2da44e}
 .bar .failed{background:#cf222e}

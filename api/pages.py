@@ -127,10 +127,11 @@ def router(settings: Settings) -> APIRouter:
         cells = []
         for job in infos:
             base = f"/sweeps/{job['id']}"
-            links = [f'<a href="{esc(base)}">status JSON</a>',
-                     f'<a href="{esc(base)}/metrics">metrics JSON</a>']
+            links = [f'<a href="{esc(base)}" title="status (JSON)">status</a>',
+                     f'<a href="{esc(base)}/metrics" title="metrics of every point (JSON)">'
+                     "metrics</a>"]
             if job["status"] == "done":
-                links.append(f'<a href="{esc(base)}/dataset">netCDF</a>')
+                links.append(f'<a href="{esc(base)}/dataset" title="combined results">netCDF</a>')
             grid = " &times; ".join(str(len(job["request"][n])) for n in SWEPT)
             cells.append([f'<a href="/jobs/{esc(job["id"])}" title="{esc(job["id"])}">'
                           f"{esc(job['id'][:8])}</a>", badge(job["status"]), progress(job),
@@ -139,9 +140,9 @@ def router(settings: Settings) -> APIRouter:
         shown = (f"<p class=\"muted\">{len(infos)} newest of {total} jobs.</p>"
                  if total > len(infos) else "")
         body = ("<h1>Sweep jobs</h1>" + (table(["job", "status", "progress",
-                                                "grid E0 &times; IOP &times; thickness &times; "
-                                                "pmax", "submitted", "finished", "data"], cells,
-                                               nowrap=True)
+                                                '<span title="E0 &times; IOP &times; thickness '
+                                                '&times; pmax">grid</span>', "submitted",
+                                                "finished", "JSON, netCDF"], cells, nowrap=True)
                                          if cells else '<p>No jobs yet. <a href="/new">Submit a '
                                                        'sweep</a>.</p>') + shown)
         active = any(job["status"] in ACTIVE for job in infos)
