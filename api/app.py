@@ -336,7 +336,7 @@ def create_app(settings: Settings) -> FastAPI:
                                "out_of_range" if "outside" in str(err) else "value_error") from None
         return {"job_id": body.job_id, **est.to_dict()}
 
-    app.include_router(pages.router(settings))
+    app.include_router(pages.router(settings, _describe))
 
     # -- schema and docs (behind the token too, when one is set) -------------------------------
 

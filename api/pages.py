@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import sqlite3
 from contextlib import closing
-from typing import Any
+from typing import Any, Callable
 from urllib.parse import parse_qsl, quote
 
 from fastapi import APIRouter, Depends, HTTPException, Request
@@ -47,8 +47,10 @@ def _safe_next(target: str | None) -> str:
     return target
 
 
-def router(settings: Settings) -> APIRouter:
-    """The pages of the service in ``settings``; ``api.app`` includes this router."""
+def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
+    """The pages of the service in ``settings``; ``api.app`` includes this router.  ``describe``
+    turns a validation error into the API's ``{"loc", "field", "msg", "type"}`` (the messages of
+    a 422), so the form shows the same words."""
     SweepRequest = schemas.sweep_request_model(settings.max_points)
     token = settings.token
 
@@ -207,8 +209,6 @@ def router(settings: Settings) -> APIRouter:
 
     def _submit(form: dict[str, str]) -> str | dict[str, list[str]]:
         """The new job's id, or the errors by field (the messages of POST /sweeps)."""
-        from .app import _describe
-
         # Axes with a syntax error are left out of the body (they take their defaults there), so
         # that the schema still reports every other field at once.
         body, errors = sweep_form.request_from_form(form, settings.max_points)
@@ -216,14 +216,14 @@ def router(settings: Settings) -> APIRouter:
         try:
             values = SweepRequest.model_validate(body).model_dump()
         except ValidationError as exc:
-            problems = [_describe({**e, "loc": ("body", *e["loc"])}) for e in exc.errors()]
+            problems = [describe({**e, "loc": ("body", *e["loc"])}) for e in exc.errors()]
         else:
             if not errors:
                 try:
                     with connect() as con:
                         return jobs.create_job(con, settings, values)[0]
                 except RequestValidationError as exc:
-                    problems = [_describe(e) for e in exc.errors()]
+                    problems = [describe(e) for e in exc.errors()]
         for p in problems:
             field = p["field"] if p["field"] in SweepRequest.model_fields else sweep_form.GENERAL
             errors.setdefault(field, []).append(p["msg"])
