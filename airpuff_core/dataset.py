@@ -1,7 +1,7 @@
-"""RunResult <-> CF-annotated xarray.Dataset, and atomic netCDF writing.
+"""netCDF files of runs: atomic writing, and the parameters a file was made with.
 
-The names, dimensions and units are the contract of SPEC section 7.  Run parameters are scalar
-coordinates (user units, with a ``units`` attribute) and are repeated as global attributes.
+The dataset itself is made by ``RunResult.to_dataset`` (``result.py``); its run parameters are
+scalar coordinates and global attributes, the full set as the JSON attribute ``parameters_json``.
 """
 
 from __future__ import annotations
@@ -11,57 +11,9 @@ import os
 import tempfile
 from pathlib import Path
 
-import numpy as np
 import xarray as xr
 
-from . import __version__
-from .params import CHOICES, PARAMETERS, RunParams
-from .result import HISTORIES, METRICS, SNAPSHOT_FIELDS, SNAPSHOT_LABELS, RunResult
-
-
-def result_to_dataset(result: RunResult) -> xr.Dataset:
-    """Build the per-run dataset of SPEC section 7 from a RunResult."""
-    data_vars = {}
-    for name, (unit, long_name) in HISTORIES.items():
-        data_vars[name] = xr.Variable(("time",), np.asarray(result.histories[name], dtype=float),
-                                      {"units": unit, "long_name": long_name})
-    for name, (dim, unit, long_name) in SNAPSHOT_FIELDS.items():
-        data_vars[name] = xr.Variable(("snapshot", dim), np.asarray(result.snapshots[name], float),
-                                      {"units": unit, "long_name": long_name})
-    for name, (unit, long_name) in METRICS.items():
-        attrs = {"units": unit, "long_name": long_name}
-        note = result.metric_notes.get(name)
-        if note:
-            attrs["comment"] = note
-        data_vars[name] = xr.Variable((), float(result.metrics.get(name, np.nan)), attrs)
-
-    coords = {
-        "time": ("time", np.asarray(result.time, float), {"units": "ms", "long_name": "time"}),
-        "snapshot": ("snapshot", np.arange(len(SNAPSHOT_LABELS)), {"long_name": "snapshot index"}),
-        "snapshot_label": ("snapshot", np.array(SNAPSHOT_LABELS, dtype=object),
-                           {"long_name": "instant of the snapshot"}),
-        "snapshot_time": ("snapshot", np.asarray(result.snapshot_time, float),
-                          {"units": "ms", "long_name": "time of the snapshot"}),
-    }
-    p = result.params
-    for name, spec in PARAMETERS.items():
-        coords[name] = ((), float(getattr(p, name)), {"units": spec.unit, "long_name": spec.description})
-
-    attrs = {
-        "Conventions": "CF-1.10",
-        "title": "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
-        "software": "airpuff",
-        "software_version": __version__,
-        "parameters_json": json.dumps(p.to_dict(), sort_keys=True),
-    }
-    for name in CHOICES:
-        attrs[name] = getattr(p, name)
-    for name, spec in PARAMETERS.items():
-        attrs[f"param_{name}"] = float(getattr(p, name))
-    for k, v in result.diagnostics.items():
-        if isinstance(v, (int, float, str, np.integer, np.floating)):
-            attrs[f"solver_{k}"] = v if not isinstance(v, np.generic) else v.item()
-    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
+from .params import RunParams
 
 
 def params_from_dataset(ds: xr.Dataset) -> RunParams:
