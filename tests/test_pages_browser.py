@@ -178,6 +178,8 @@ def test_submit_follow_and_plots(server, browser, shots):
     browser.find_element(By.ID, "submit").click()
     WebDriverWait(browser, 30).until(lambda d: "/jobs/" in d.current_url)
     job_id = browser.current_url.rsplit("/", 1)[1]
+    if browser.find_element(By.ID, "status").text in ("queued", "running"):
+        screenshot(browser, shots / "job-running.png")
 
     # The page reloads itself while the job runs (nothing here reloads it).
     WebDriverWait(browser, 600, poll_frequency=1).until(
