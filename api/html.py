@@ -41,23 +41,27 @@ button{font:inherit;padding:.3em 1em;margin-top:1em;cursor:pointer}
 header button{margin:0;padding:.1em .7em}
 """
 
-# Reload the page when the state of its jobs in the watched JSON (``GET /sweeps/{id}`` or
-# ``GET /sweeps``) differs from the state the page was rendered with (``watch_state``).  The
-# request carries the session cookie, which the API accepts for GET (api.auth).
+# Reload the page when a job in the watched JSON (``GET /sweeps/{id}`` or ``GET /sweeps``) has
+# another status than the page shows, and at most every RELOAD_S seconds when only its counts of
+# points differ (each reload redraws the figures of a running job).  The request carries the
+# session cookie, which the API accepts for GET (api.auth).
+RELOAD_S = 10
 REFRESH_SCRIPT = """
 <script>
-(function(){var b=document.body.dataset;if(!b.watch)return;
-function state(j){return (j.jobs||[j]).map(function(x){return [x.id,x.status,x.points_done,
-x.points_failed].join(':')}).join(',')}
+(function(){var b=document.body.dataset,t0=Date.now();if(!b.watch)return;
+function s(j,f){return (j.jobs||[j]).map(function(x){return f.map(function(k){return x[k]})
+.join(':')}).join(',')}
 setInterval(function(){fetch(b.watch,{credentials:'same-origin'}).then(function(r){return r.json()})
-.then(function(j){if(state(j)!==b.state)location.reload()}).catch(function(){})},2000)})();
-</script>"""
+.then(function(j){if(s(j,['id','status'])!==b.status||(s(j,['points_done','points_failed'])
+!==b.counts&&Date.now()-t0>%d))location.reload()}).catch(function(){})},2000)})();
+</script>""" % (1000 * RELOAD_S)
 
 
-def watch_state(jobs: Iterable[dict[str, Any]]) -> str:
-    """The state the refresh script compares with (same text as its ``state`` function)."""
-    return ",".join(f"{j['id']}:{j['status']}:{j['points_done']}:{j['points_failed']}"
-                    for j in jobs)
+def watch_state(jobs: Iterable[dict[str, Any]]) -> tuple[str, str]:
+    """(statuses, counts) of jobs as the refresh script writes them from the JSON."""
+    jobs = list(jobs)
+    return (",".join(f"{j['id']}:{j['status']}" for j in jobs),
+            ",".join(f"{j['points_done']}:{j['points_failed']}" for j in jobs))
 
 
 def esc(value: Any) -> str:
@@ -106,14 +110,14 @@ def table(headers: Iterable[str], rows: Iterable[Iterable[str]], numeric: set[in
     return f"<table{cls}><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def page(title: str, body: str, *, watch: tuple[str, str] | None = None,
+def page(title: str, body: str, *, watch: tuple[str, tuple[str, str]] | None = None,
          logout: bool = False) -> str:
     """A whole page: header with navigation, ``body`` (HTML), and the refresh script when
     ``watch`` is (JSON URL to follow, ``watch_state`` of the jobs as rendered)."""
     logout_form = ('<form method="post" action="/logout"><button type="submit">log out</button>'
                    "</form>") if logout else ""
-    watch_attr = (f' data-watch="{esc(watch[0])}" data-state="{esc(watch[1])}"'
-                  if watch else "")
+    watch_attr = (f' data-watch="{esc(watch[0])}" data-status="{esc(watch[1][0])}" '
+                  f'data-counts="{esc(watch[1][1])}"' if watch else "")
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">'
             f"<title>{esc(title)} - airpuff</title><style>{CSS}</style></head>"

@@ -67,7 +67,7 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
     def connect() -> closing[sqlite3.Connection]:
         return closing(db.connect(settings.db_path))
 
-    def html(title: str, body: str, status_code: int = 200, watch: tuple[str, str] | None = None,
+    def html(title: str, body: str, status_code: int = 200, watch: tuple[str, tuple[str, str]] | None = None,
              headers: dict[str, str] | None = None) -> HTMLResponse:
         return HTMLResponse(page(title, body, watch=watch, logout=bool(token)), status_code,
                             headers={"Cache-Control": "no-store", **(headers or {})})
