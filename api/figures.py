@@ -163,8 +163,9 @@ def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, 
     figure will not change (it was read from or written to the cache)."""
     path = cache_path(settings, job["id"], name)
     if name.startswith("history-"):
-        point = history_point(records, int(name.split("-", 1)[1]))
-        if point is None or point["index"] != int(name.split("-", 1)[1]):
+        index = int(name.split("-", 1)[1])
+        point = history_point(records, index)
+        if point is None or point["index"] != index:  # not a finished point of this job
             raise FigureUnavailable(name)
         if not path.is_file():
             _draw_history(settings, point["key"], path)
