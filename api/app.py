@@ -1,4 +1,6 @@
-"""The FastAPI application: validate, persist the job, report status and metrics, serve netCDF.
+"""The FastAPI application: settings, lifespan (the job runner), auth, body limit, error format.
+
+The routes are in ``api.routes``, the browser pages in ``api.pages``.
 
 Long work never runs here.  ``POST /sweeps`` writes a job row (and its grid) to SQLite and answers
 202 with a Location; the job runner (``api.runner``, a thread that owns the Dask client) picks the
@@ -8,32 +10,26 @@ only the runner thread uses it).
 """
 
 
-import json
 import logging
 import sqlite3
 from contextlib import asynccontextmanager
-from typing import Iterator, Optional
+from typing import Optional
 
-from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response, status
+from fastapi import Depends, FastAPI, HTTPException, Request, status
 from fastapi.encoders import jsonable_encoder
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.docs import get_swagger_ui_html
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from airpuff_core import __version__
-from airpuff_core.params import PARAMETERS, SWEPT
+from airpuff_core.params import PARAMETERS
 
-from . import auth, db, jobs, pages, schemas
-from .jobs import problem_422 as _problem_422
+from . import auth, db, pages, routes, schemas
 from .settings import Settings
 
 log = logging.getLogger("airpuff.api")
-
-JOB_STATUSES = ("queued", "running", "done", "failed", "cancelled")
-
 
 # -- validation errors --------------------------------------------------------------------------
 
@@ -156,8 +152,7 @@ def create_app(settings: Settings) -> FastAPI:
 
                 await anyio.to_thread.run_sync(runner.stop)
 
-    auth = _auth_dependency(settings)
-    deps = [auth] if auth is not None else []
+    token_dependency = _auth_dependency(settings)
     app = FastAPI(
         title="airpuff",
         version=__version__,
@@ -195,157 +190,6 @@ def create_app(settings: Settings) -> FastAPI:
         return JSONResponse({"detail": "the job database is busy; retry shortly"}, 503,
                             headers={"Retry-After": "2"})
 
-    def get_db() -> Iterator[sqlite3.Connection]:
-        con = db.connect(settings.db_path)
-        try:
-            yield con
-        finally:
-            con.close()
-
-    not_found = {404: {"model": schemas.Problem, "description": "no job with this id"}}
-    unauthorized = {401: {"model": schemas.Problem, "description": "missing or wrong token"}} \
-        if settings.token else {}
-    invalid = {422: {"model": schemas.ValidationProblem,
-                     "description": "invalid input; `loc`/`field` name the offending field"}}
-
-    def job_or_404(con, job_id: str) -> sqlite3.Row:
-        row = db.get_job(con, job_id)
-        if row is None:
-            raise HTTPException(404, f"no sweep job with id {job_id!r}")
-        return row
-
-    # -- routes ------------------------------------------------------------------------------
-
-    @app.get("/health", response_model=schemas.Health, tags=["service"],
-             summary="Liveness of the API and state of the job runner (no token needed)")
-    def health(request: Request):
-        runner = request.app.state.runner
-        if runner is None:
-            return {"status": "ok", "version": __version__, "runner": "disabled"}
-        return {"status": "ok", "version": __version__, "runner": runner.state,
-                "runner_error": runner.error, "workers": runner.n_workers}
-
-    @app.post("/sweeps", status_code=202, response_model=schemas.Submitted, tags=["sweeps"],
-              dependencies=deps, responses={**invalid, **unauthorized},
-              summary="Submit a sweep; answers 202 with the job id and a Location header")
-    def submit(body: SweepRequest, response: Response, request: Request,  # type: ignore[valid-type]
-               con: sqlite3.Connection = Depends(get_db)):
-        job_id, n_points = jobs.create_job(con, settings, body.model_dump())
-        runner = request.app.state.runner
-        if runner is not None:
-            runner.wake()
-        response.headers["Location"] = f"/sweeps/{job_id}"
-        return {"id": job_id, "status": "queued", "points_total": n_points}
-
-    @app.get("/sweeps", response_model=schemas.JobList, tags=["sweeps"], dependencies=deps,
-             responses={**invalid, **unauthorized}, summary="List jobs, newest first")
-    def list_sweeps(limit: int = Query(100, ge=1, le=1000, description="jobs per page"),
-                    offset: int = Query(0, ge=0, le=2**62, description="jobs to skip"),
-                    status_: Optional[schemas.JobStatusName] = Query(
-                        None, alias="status", description="only jobs with this status"),
-                    con: sqlite3.Connection = Depends(get_db)):
-        rows = db.list_jobs(con, limit, offset, status_)
-        return {"jobs": [jobs.job_info(r) for r in rows], "total": db.count_jobs(con, status_)}
-
-    @app.get("/sweeps/{job_id}", response_model=schemas.JobInfo, tags=["sweeps"],
-             dependencies=deps, responses={**not_found, **unauthorized},
-             summary="Status of a job: points total, done and failed, timestamps, error")
-    def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-        return jobs.job_info(job_or_404(con, job_id))
-
-    @app.get("/sweeps/{job_id}/metrics", response_model=schemas.Metrics, tags=["sweeps"],
-             dependencies=deps, responses={**not_found, **unauthorized},
-             summary="ORA and Corvis-style metrics of every point (null where missing)")
-    def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-        row = job_or_404(con, job_id)
-        points = jobs.point_records(con, job_id)
-        return {"id": job_id, "status": row["status"], "units": schemas.units(), "points": points}
-
-    @app.get("/sweeps/{job_id}/dataset", tags=["sweeps"], dependencies=deps,
-             response_class=FileResponse,
-             responses={200: {"content": {"application/x-netcdf": {}},
-                              "description": "the combined netCDF of the sweep (CF-1.10)"},
-                        409: {"model": schemas.Problem, "description": "the job is not done"},
-                        **not_found, **unauthorized},
-             summary="Download the combined netCDF of a finished job")
-    def get_dataset(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-        row = job_or_404(con, job_id)
-        if row["status"] != "done":
-            raise HTTPException(409, f"job {job_id} is {row['status']}; its dataset exists once "
-                                     "it is done")
-        # The path comes from the job's own id as stored in the database, never from the request,
-        # and must lie inside this job's folder.
-        path = settings.job_dataset(row["id"]).resolve()
-        job_dir = (settings.jobs_dir / row["id"]).resolve()
-        if job_dir not in path.parents or not path.is_file():
-            raise HTTPException(404, f"the dataset of job {job_id} is missing on the server")
-        return FileResponse(path, media_type="application/x-netcdf",
-                            filename=f"airpuff-sweep-{row['id']}.nc")
-
-    @app.delete("/sweeps/{job_id}", response_model=schemas.JobInfo, tags=["sweeps"],
-                dependencies=deps,
-                responses={409: {"model": schemas.Problem, "description": "the job already ended"},
-                           **not_found, **unauthorized},
-                summary="Cancel a queued or running job (points already finished are kept)")
-    def cancel(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
-        row = job_or_404(con, job_id)
-        if row["status"] in ("queued", "running"):
-            db.cancel_job(con, job_id)
-            runner = request.app.state.runner
-            if runner is not None:
-                runner.wake()
-            row = job_or_404(con, job_id)
-        if row["status"] in ("done", "failed"):
-            raise HTTPException(409, f"job {job_id} already ended ({row['status']})")
-        return jobs.job_info(row)
-
-    @app.post("/identify", response_model=schemas.IdentifyResult, tags=["identify"],
-              dependencies=deps,
-              responses={409: {"model": schemas.Problem, "description": "the job is not done"},
-                         **not_found, **invalid, **unauthorized},
-              summary="Estimate IOP and E0 from a measurement, by interpolation on a finished "
-                      "sweep job")
-    def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):
-        # Interpolation only (milliseconds): the metrics come from the job database, so this
-        # handler never opens a netCDF file and never runs the solver.
-        from sweep.identify import IdentifyError, SweepTable, identify
-
-        if body.refine:
-            raise _problem_422(["body", "refine"], "refine",
-                               "refine: solver refinement is not offered over HTTP; accepted: "
-                               "false (use `airpuff identify --refine` on the downloaded dataset)")
-        row = job_or_404(con, body.job_id)
-        if row["status"] != "done":
-            raise HTTPException(409, f"job {body.job_id} is {row['status']}; identification "
-                                     "needs a finished (done) sweep")
-        records = []
-        for p in db.job_points(con, body.job_id):
-            rec = {name: p[name] for name in SWEPT}
-            rec["status"] = p["status"]
-            rec.update(db.loads(p["metrics_json"]) or {} if p["status"] == "ok" else {})
-            records.append(rec)
-        measurement = {k: (v["value"], v["sigma"])
-                       for k, v in body.measurement.model_dump().items() if v is not None}
-        try:
-            table = SweepTable.from_records(json.loads(row["spec_json"]), records)
-            est = identify(table, measurement, body.thickness, body.pmax)
-        except IdentifyError as err:
-            loc = ["body", "measurement", err.field] if err.field in schemas.MEASURABLE_UNITS \
-                else ["body", err.field]
-            raise _problem_422(loc, err.field, f"{err.field}: {err}",
-                               "out_of_range" if "outside" in str(err) else "value_error") from None
-        return {"job_id": body.job_id, **est.to_dict()}
-
+    app.include_router(routes.build_router(settings, SweepRequest, token_dependency))
     app.include_router(pages.router(settings, _describe))
-
-    # -- schema and docs (behind the token too, when one is set) -------------------------------
-
-    @app.get("/openapi.json", include_in_schema=False, dependencies=deps)
-    def openapi_json():
-        return JSONResponse(app.openapi())
-
-    @app.get("/docs", include_in_schema=False, dependencies=deps)
-    def docs():
-        return get_swagger_ui_html(openapi_url="/openapi.json", title="airpuff API")
-
     return app

@@ -1,7 +1,7 @@
 """The figures of a job's page, drawn by the server as PNG from the stored results.
 
 - ``ora-<metric>``: an ORA metric (P1, P2, CH, IOPg, IOPcc) against IOP, one line per E0, from
-  the job's point records in the database (``api.jobs.point_records``);
+  the job's point records in the database (``api.routes.point_records``);
 - ``heatmap-<metric>``: DA and CH over the (IOP, E0) grid, when it has at least two values of each;
 - ``history-<index>``: apex displacement and jet pressure against time of one point, from the
   point's own netCDF file.
@@ -36,12 +36,12 @@ import numpy as np
 from airpuff_core.result import METRICS
 
 from .settings import Settings
+from .status import ENDED_JOB_STATUSES
 
 ORA_METRICS = ("P1", "P2", "CH", "IOPg", "IOPcc")
 HEATMAP_METRICS = ("DA", "CH")
 NAME_RE = re.compile(r"^(ora-(%s)|heatmap-(%s)|history-\d{1,9})$"
                      % ("|".join(ORA_METRICS), "|".join(HEATMAP_METRICS)))
-ENDED = ("done", "failed", "cancelled")
 HISTORY_TIMEOUT_S = 120.0
 DPI = 100
 
@@ -159,7 +159,7 @@ def write_atomic(path: Path, data: bytes) -> None:
 
 def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, Any]],
                name: str) -> tuple[bytes, bool]:
-    """(PNG, final) of figure ``name`` of ``job`` (``api.jobs.job_info``); ``final`` says the
+    """(PNG, final) of figure ``name`` of ``job`` (``api.routes.job_info``); ``final`` says the
     figure will not change (it was read from or written to the cache)."""
     path = cache_path(settings, job["id"], name)
     if name.startswith("history-"):
@@ -170,7 +170,7 @@ def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, 
         if not path.is_file():
             _draw_history(settings, point["key"], path)
         return path.read_bytes(), True
-    final = job["status"] in ENDED
+    final = job["status"] in ENDED_JOB_STATUSES
     if final and path.is_file():
         return path.read_bytes(), True
     data = draw(name, records)
@@ -180,7 +180,7 @@ def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, 
 
 
 def _draw_history(settings: Settings, key: str, out: Path) -> None:
-    from sweep.store import point_path
+    from sweep.storage import point_path
 
     nc = point_path(settings.points_dir, key)
     if not nc.is_file():

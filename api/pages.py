@@ -6,7 +6,7 @@
     GET  /new, POST /new                the sweep form (validated by the POST /sweeps schema)
     GET  /login, POST /login, POST /logout   the token, when AIRPUFF_API_TOKEN is set
 
-The pages read jobs through ``api.jobs`` (the functions behind the JSON endpoints) and link to the
+The pages read and submit jobs through the functions behind the JSON endpoints (``api.routes``) and link to the
 JSON endpoints for the data.  With a token set, every page needs the session cookie of
 ``POST /login`` (see ``api.auth``); without it a page redirects to the login form.
 """
@@ -27,11 +27,11 @@ from starlette.concurrency import run_in_threadpool
 from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, SWEPT
 from airpuff_core.result import METRICS
 
-from . import auth, db, figures, jobs, schemas, sweep_form
+from . import auth, db, figures, routes, schemas, sweep_form
 from .html import badge, esc, number, page, progress, table, watch_state, when
 from .settings import Settings
+from .status import ACTIVE_JOB_STATUSES
 
-ACTIVE = ("queued", "running")
 LIST_LIMIT = 100  # jobs on the front page
 TABLE_LIMIT = 1000  # point rows on a job's page (the metrics JSON has them all)
 
@@ -121,11 +121,10 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
     # -- jobs ------------------------------------------------------------------------------------
 
     @r.get("/", response_class=HTMLResponse)
-    def job_list():
-        with connect() as con:
-            rows = db.list_jobs(con, LIST_LIMIT, 0)
-            total = db.count_jobs(con)
-        infos = [jobs.job_info(row) for row in rows]
+    def job_list(con: sqlite3.Connection = Depends(routes.get_db)):
+        rows = db.list_jobs(con, LIST_LIMIT, 0)
+        total = db.count_jobs(con)
+        infos = [routes.job_info(row) for row in rows]
         cells = []
         for job in infos:
             base = f"/sweeps/{job['id']}"
@@ -147,32 +146,33 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
                                                 "finished", "JSON, netCDF"], cells, nowrap=True)
                                          if cells else '<p>No jobs yet. <a href="/new">Submit a '
                                                        'sweep</a>.</p>') + shown)
-        active = any(job["status"] in ACTIVE for job in infos)
+        active = any(job["status"] in ACTIVE_JOB_STATUSES for job in infos)
         watch = (f"/sweeps?limit={LIST_LIMIT}", watch_state(infos)) if active else None
         return html("jobs", body, watch=watch)
 
-    def load(job_id: str) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
+    def load(con: sqlite3.Connection, job_id: str
+             ) -> tuple[dict[str, Any], list[dict[str, Any]]] | None:
         """(job info, point records) of a job, or None if there is no such job."""
-        with connect() as con:
-            row = db.get_job(con, job_id)
-            if row is None:
-                return None
-            return jobs.job_info(row), jobs.point_records(con, job_id)
+        row = db.get_job(con, job_id)
+        if row is None:
+            return None
+        return routes.job_info(row), routes.point_records(con, job_id)
 
     @r.get("/jobs/{job_id}", response_class=HTMLResponse)
-    def job_page(job_id: str, point: int | None = None):
-        loaded = load(job_id)
+    def job_page(job_id: str, point: int | None = None,
+                 con: sqlite3.Connection = Depends(routes.get_db)):
+        loaded = load(con, job_id)
         if loaded is None:
             return not_found(job_id)
         job, records = loaded
         body = (_job_header(job) + _figures(job, records, point) + _metrics_table(records)
                 + _failures(records) + _request_table(job["request"]))
-        watch = (f"/sweeps/{job['id']}", watch_state([job])) if job["status"] in ACTIVE else None
+        watch = (f"/sweeps/{job['id']}", watch_state([job])) if job["status"] in ACTIVE_JOB_STATUSES else None
         return html(f"job {job['id'][:8]}", body, watch=watch)
 
     @r.get("/jobs/{job_id}/figures/{name}.png")
-    def job_figure(job_id: str, name: str):
-        loaded = load(job_id)
+    def job_figure(job_id: str, name: str, con: sqlite3.Connection = Depends(routes.get_db)):
+        loaded = load(con, job_id)
         if loaded is None:
             return not_found(job_id)
         job, records = loaded
@@ -221,7 +221,7 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
             if not errors:
                 try:
                     with connect() as con:
-                        return jobs.create_job(con, settings, values)[0]
+                        return routes.create_job(con, settings, values)[0]
                 except RequestValidationError as exc:
                     problems = [describe(e) for e in exc.errors()]
         for p in problems:
