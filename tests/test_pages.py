@@ -24,14 +24,9 @@ FIELD_ERROR = re.compile(r'<(?:div|p) class="(?:field-)?error" id="error-([\w]+)
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    s = ServerProcess(tmp_path_factory.mktemp("pages") / "data", "--no-runner",
-                      "--max-points", "4", token=TOKEN)
-    try:
-        s.start()
+    with ServerProcess(tmp_path_factory.mktemp("pages") / "data", "--no-runner",
+                       "--max-points", "4", token=TOKEN).running() as s:
         yield s
-    finally:
-        if s.proc is not None:
-            s.stop()
 
 
 @pytest.fixture(scope="module")
@@ -162,12 +157,9 @@ def test_request_text_is_escaped(server):
 
 
 def test_pages_without_a_token(tmp_path):
-    s = ServerProcess(tmp_path / "data", "--no-runner").start()
-    try:
-        with httpx.Client(base_url=s.url, timeout=30) as c:
-            assert c.get("/").status_code == 200
-            assert "No jobs yet" in c.get("/").text
-            assert c.get("/new").status_code == 200
-            assert c.get("/login").status_code == 303
-    finally:
-        s.stop()
+    with ServerProcess(tmp_path / "data", "--no-runner").running() as s, \
+            httpx.Client(base_url=s.url, timeout=30) as c:
+        assert c.get("/").status_code == 200
+        assert "No jobs yet" in c.get("/").text
+        assert c.get("/new").status_code == 200
+        assert c.get("/login").status_code == 303

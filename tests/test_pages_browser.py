@@ -52,13 +52,9 @@ N_POINTS = 6
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    s = ServerProcess(tmp_path_factory.mktemp("pages") / "data", "--workers", "2", token=TOKEN)
-    try:
-        s.start(wait_runner=True)
+    with ServerProcess(tmp_path_factory.mktemp("pages") / "data", "--workers", "2",
+                       token=TOKEN).running(wait_runner=True) as s:
         yield s
-    finally:
-        if s.proc is not None:
-            s.stop()
 
 
 @pytest.fixture(scope="module")
