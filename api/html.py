@@ -21,7 +21,8 @@ h1{font-size:1.35em;margin:.2em 0 .6em}h2{font-size:1.1em;margin:1.4em 0 .5em}
 table{border-collapse:collapse;margin:.3em 0}
 th,td{border-bottom:1px solid #d0d7de;padding:.25em .6em;text-align:left;vertical-align:top}
 th{background:#f6f8fa;font-weight:600}table.nowrap td{white-space:nowrap}
-.points table{font-size:.9em}.points th,.points td{padding:.2em .35em}td.num{text-align:right;font-variant-numeric:tabular-nums}
+.points table{font-size:.9em}.points th,.points td{padding:.2em .35em}
+td.num{text-align:right;font-variant-numeric:tabular-nums}
 .badge{display:inline-block;color:#fff;border-radius:1em;padding:0 .6em;font-size:.9em}
 .bar{display:inline-block;width:8em;height:.8em;background:#eaeef2;border-radius:.4em;
 overflow:hidden;vertical-align:middle;margin-right:.5em}

@@ -6,9 +6,9 @@
     GET  /new, POST /new                the sweep form (validated by the POST /sweeps schema)
     GET  /login, POST /login, POST /logout   the token, when AIRPUFF_API_TOKEN is set
 
-The pages read and submit jobs through the functions behind the JSON endpoints (``api.routes``) and link to the
-JSON endpoints for the data.  With a token set, every page needs the session cookie of
-``POST /login`` (see ``api.auth``); without it a page redirects to the login form.
+The pages read and submit jobs through the functions behind the JSON endpoints (``api.routes``)
+and link to the JSON endpoints for the data.  With a token set, every page needs the session
+cookie of ``POST /login`` (see ``api.auth``); without it a page redirects to the login form.
 """
 
 from __future__ import annotations
@@ -34,10 +34,6 @@ from .status import ACTIVE_JOB_STATUSES
 
 LIST_LIMIT = 100  # jobs on the front page
 TABLE_LIMIT = 1000  # point rows on a job's page (the metrics JSON has them all)
-
-
-class LoginRequired(Exception):
-    """Raised by the pages' dependency; answered with a redirect to the login form."""
 
 
 def _safe_next(target: str | None) -> str:
@@ -67,10 +63,10 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
     def connect() -> closing[sqlite3.Connection]:
         return closing(db.connect(settings.db_path))
 
-    def html(title: str, body: str, status_code: int = 200, watch: tuple[str, tuple[str, str]] | None = None,
-             headers: dict[str, str] | None = None) -> HTMLResponse:
+    def html(title: str, body: str, status_code: int = 200,
+             watch: tuple[str, tuple[str, str]] | None = None) -> HTMLResponse:
         return HTMLResponse(page(title, body, watch=watch, logout=bool(token)), status_code,
-                            headers={"Cache-Control": "no-store", **(headers or {})})
+                            headers={"Cache-Control": "no-store"})
 
     def not_found(job_id: str) -> HTMLResponse:
         return html("not found", f"<h1>No such job</h1><p>There is no sweep job with id "
@@ -167,7 +163,8 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
         job, records = loaded
         body = (_job_header(job) + _figures(job, records, point) + _metrics_table(records)
                 + _failures(records) + _request_table(job["request"]))
-        watch = (f"/sweeps/{job['id']}", watch_state([job])) if job["status"] in ACTIVE_JOB_STATUSES else None
+        active = job["status"] in ACTIVE_JOB_STATUSES
+        watch = (f"/sweeps/{job['id']}", watch_state([job])) if active else None
         return html(f"job {job['id'][:8]}", body, watch=watch)
 
     @r.get("/jobs/{job_id}/figures/{name}.png")
@@ -325,7 +322,8 @@ def _metrics_table(records: list[dict[str, Any]]) -> str:
                                                       + len(METRICS)))
     more = (f'<p class="muted">First {TABLE_LIMIT} of {len(records)} points; the metrics JSON '
             f"has them all.</p>" if len(records) > TABLE_LIMIT else "")
-    return ('<h2 id="metrics">Metrics of the points</h2><div class="points" style="overflow-x:auto">'
+    return ('<h2 id="metrics">Metrics of the points</h2>'
+            '<div class="points" style="overflow-x:auto">'
             + table(headers, rows, numeric, nowrap=True) + "</div>" + more)
 
 
