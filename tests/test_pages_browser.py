@@ -40,6 +40,7 @@ if not (CHROMIUM and CHROMEDRIVER and selenium):
 
 from selenium import webdriver  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.support import expected_conditions  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 
 TOKEN = "page&test=token+/%42"  # characters that need URL encoding in the form
@@ -95,11 +96,18 @@ def session_client(server, driver) -> httpx.Client:
     return httpx.Client(base_url=server.url, cookies=cookies, timeout=60)
 
 
-def login(driver, server, token: str) -> None:
+def click_and_wait(driver, button_id: str) -> None:
+    """Click a submit button and wait for the next page (a click does not wait for it)."""
+    old_page = driver.find_element(By.TAG_NAME, "html")
+    driver.find_element(By.ID, button_id).click()
+    WebDriverWait(driver, 60).until(expected_conditions.staleness_of(old_page))
+
+
+def login(driver, token: str) -> None:
     box = driver.find_element(By.ID, "f-token")
     box.clear()
     box.send_keys(token)
-    driver.find_element(By.ID, "login").click()
+    click_and_wait(driver, "login")
 
 
 def test_token_flow(server, browser, shots):
@@ -117,9 +125,9 @@ def test_token_flow(server, browser, shots):
     browser.get(server.url + "/new")
     assert "/login" in browser.current_url
     screenshot(browser, shots / "login.png")
-    login(browser, server, "wrong")
+    login(browser, "wrong")
     assert browser.find_element(By.ID, "login-error").text == "wrong token"
-    login(browser, server, TOKEN)
+    login(browser, TOKEN)
     WebDriverWait(browser, 30).until(lambda d: d.current_url.endswith("/new"))
     cookie = browser.get_cookie("airpuff_session")
     assert cookie["httpOnly"] and cookie["sameSite"] == "Strict" and TOKEN not in cookie["value"]
@@ -142,7 +150,7 @@ def test_bad_value_shows_the_api_message(server, browser, shots):
         box = browser.find_element(By.ID, f"f-{name}")
         box.clear()
         box.send_keys(text)
-    browser.find_element(By.ID, "submit").click()
+    click_and_wait(browser, "submit")
     WebDriverWait(browser, 30).until(lambda d: d.find_elements(By.ID, "error-E0"))
     assert browser.find_element(By.ID, "error-E0").text == expected[0]["msg"]
     assert "invalid" in browser.find_element(By.ID, "f-E0").get_attribute("class")
@@ -171,7 +179,7 @@ def test_submit_follow_and_plots(server, browser, shots):
         box = browser.find_element(By.ID, f"f-{name}")
         box.clear()
         box.send_keys(text)
-    browser.find_element(By.ID, "submit").click()
+    click_and_wait(browser, "submit")
     WebDriverWait(browser, 30).until(lambda d: "/jobs/" in d.current_url)
     job_id = browser.current_url.rsplit("/", 1)[1]
     if browser.find_element(By.ID, "status").text in ("queued", "running"):
