@@ -39,6 +39,10 @@ if not (CHROMIUM and CHROMEDRIVER and selenium):
                    "chromium-driver; .ci/run does it)"), allow_module_level=True)
 
 from selenium import webdriver  # noqa: E402
+from selenium.common.exceptions import (  # noqa: E402
+    JavascriptException,
+    StaleElementReferenceException,
+)
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support import expected_conditions  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
@@ -96,6 +100,13 @@ def session_client(server, driver) -> httpx.Client:
     return httpx.Client(base_url=server.url, cookies=cookies, timeout=60)
 
 
+def job_status(driver) -> str:
+    """The status shown on a job's page, read in one script call: the page reloads itself while
+    the job runs, which would make a found element stale before its text is read."""
+    return (driver.execute_script(
+        "var e = document.getElementById('status'); return e ? e.textContent : '';") or "").strip()
+
+
 def click_and_wait(driver, button_id: str) -> None:
     """Click a submit button and wait for the next page (a click does not wait for it)."""
     old_page = driver.find_element(By.TAG_NAME, "html")
@@ -108,6 +119,13 @@ def login(driver, token: str) -> None:
     box.clear()
     box.send_keys(token)
     click_and_wait(driver, "login")
+
+
+def open_page(driver, server, path: str) -> None:
+    """Open ``path``, logging in first if the server asks for the token."""
+    driver.get(server.url + path)
+    if "/login" in driver.current_url:
+        login(driver, TOKEN)
 
 
 def test_token_flow(server, browser, shots):
@@ -144,7 +162,7 @@ def test_bad_value_shows_the_api_message(server, browser, shots):
     with server.client() as api:
         expected = api.post("/sweeps", json={"E0": [0.3, -1.0]}).json()["detail"]
     assert [d["field"] for d in expected] == ["E0"]
-    browser.get(server.url + "/new")
+    open_page(browser, server, "/new")
     fields = {"E0": "0.3, -1", "IOP": '12"><script>window.injected=1</script>'}
     for name, text in fields.items():
         box = browser.find_element(By.ID, f"f-{name}")
@@ -172,7 +190,7 @@ def test_submit_follow_and_plots(server, browser, shots):
     """Submit through the form, watch the page refresh itself until the job is done, then check
     the table against the metrics JSON and the netCDF, and that every figure loads as a PNG that
     is drawn once and kept."""
-    browser.get(server.url + "/new")
+    open_page(browser, server, "/new")
     screenshot(browser, shots / "form.png")
     browser.find_element(By.TAG_NAME, "summary").click()  # open the model options
     for name, text in FORM.items():
@@ -182,13 +200,14 @@ def test_submit_follow_and_plots(server, browser, shots):
     click_and_wait(browser, "submit")
     WebDriverWait(browser, 30).until(lambda d: "/jobs/" in d.current_url)
     job_id = browser.current_url.rsplit("/", 1)[1]
-    if browser.find_element(By.ID, "status").text in ("queued", "running"):
+    if job_status(browser) in ("queued", "running"):
         screenshot(browser, shots / "job-running.png")
 
     # The page reloads itself while the job runs (nothing here reloads it).
-    WebDriverWait(browser, 600, poll_frequency=1).until(
-        lambda d: d.find_element(By.ID, "status").text in ("done", "failed", "cancelled"))
-    assert browser.find_element(By.ID, "status").text == "done"
+    WebDriverWait(browser, 600, poll_frequency=1,
+                  ignored_exceptions=(JavascriptException, StaleElementReferenceException)).until(
+        lambda d: job_status(d) in ("done", "failed", "cancelled"))
+    assert job_status(browser) == "done"
     assert f"{N_POINTS} / {N_POINTS} done, 0 failed" in browser.find_element(By.ID, "progress").text
 
     with server.client() as api:
