@@ -17,6 +17,7 @@ from airpuff_core.params import (
     CHOICES,
     INT_PARAMETERS,
     PARAMETERS,
+    PRESET_PARAMETERS,
     SWEPT,
     ParameterError,
 )
@@ -41,9 +42,12 @@ def option_names() -> list[str]:
 
 
 def defaults() -> dict[str, str]:
-    """The form's initial text: every field at its default."""
-    values = {name: f"{PARAMETERS[name].default:g}" for name in PARAMETERS}
-    values.update(CHOICE_DEFAULTS)
+    """The form's initial text: every field at its default; the fields that the ``model``
+    preset sets are left empty (empty fields are left out of the request, and the preset fills
+    them)."""
+    values = {name: "" if name in PRESET_PARAMETERS else f"{PARAMETERS[name].default:g}"
+              for name in PARAMETERS}
+    values.update({name: value or "" for name, value in CHOICE_DEFAULTS.items()})
     values.update({name: str(spec[0]) for name, spec in INT_PARAMETERS.items()})
     return values
 
@@ -96,6 +100,9 @@ def _field(name: str, values: dict[str, str], errors: dict[str, list[str]], help
     if name in CHOICES:
         options = "".join(f'<option value="{esc(c)}"{" selected" if values.get(name) == c else ""}>'
                           f"{esc(c)}</option>" for c in CHOICES[name])
+        if CHOICE_DEFAULTS[name] is None:  # set by the model preset unless chosen
+            selected = " selected" if not values.get(name) else ""
+            options = f'<option value=""{selected}>from model</option>' + options
         control = (f'<select id="f-{esc(name)}" name="{esc(name)}"'
                    f"{invalid}>{options}</select>")
     else:

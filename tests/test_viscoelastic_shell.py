@@ -16,6 +16,7 @@ from airpuff_core.kernels.viscoelastic import relaxation_function
 from airpuff_core.params import SWEPT
 from airpuff_core.shell import NO_HISTORY, build_shell
 from airpuff_core.viscoelastic import ViscoelasticHistory
+from api import sweep_form
 from api.schemas import sweep_request_model
 from sweep.grid import SweepSpec
 
@@ -101,8 +102,8 @@ def test_energy_budget_of_a_full_run_closes():
 
 def test_clinical_preset_and_explicit_options():
     """The clinical preset sets the shell, the compliant globe and Kling et al.'s viscoelastic
-    parameters; explicit options override it, also through the HTTP request model (whose
-    omitted preset parameters stay None, so that the preset fills them)."""
+    parameters; explicit options override it, also through the HTTP request model and the
+    browser's form (whose omitted preset parameters stay None, so that the preset fills them)."""
     p = RunParams(model="clinical")
     assert (p.cornea, p.globe, p.ve_g, p.ve_tau) == ("shell", "compliant", 0.3, 10.0)
     paper = RunParams()
@@ -114,6 +115,14 @@ def test_clinical_preset_and_explicit_options():
     axes = {k: values.pop(k) for k in SWEPT}
     point = SweepSpec(**axes, options=values).validate().validated_points()[0]
     assert (point.cornea, point.globe, point.ve_g, point.ve_tau) == ("shell", "rigid", 0.3, 10.0)
+    # the browser's sweep form leaves the preset's fields empty, so the preset fills them
+    form = {**sweep_form.defaults(), "model": "clinical", "E0": "0.5", "IOP": "16"}
+    body, errors = sweep_form.request_from_form(form, 10)
+    assert not errors and not {"cornea", "globe", "ve_g", "ve_tau"} & set(body)
+    values = sweep_request_model(10)(**body).model_dump()
+    axes = {k: values.pop(k) for k in SWEPT}
+    point = SweepSpec(**axes, options=values).validate().validated_points()[0]
+    assert (point.cornea, point.globe, point.ve_g) == ("shell", "compliant", 0.3)
 
 
 def test_apex_moment_is_the_bending_law_at_the_apex():
