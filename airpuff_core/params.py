@@ -145,11 +145,22 @@ CHOICE_DESCRIPTIONS = {
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
     "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options "
              "override it",
-    "cornea": "membrane (the paper's Fung membrane) or shell (with bending rigidity "
-              "D = E0 h^3/(12 (1 - nu^2))); default: as the model preset",
+    "cornea": "membrane (the paper's Fung membrane) or shell (the membrane with bending rigidity "
+              "D = E0 h^3/(12 (1 - nu^2)), Kirchhoff-Love, large rotations)",
     "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
               "rotate)",
 }
+
+
+
+def choice_default_text(name: str) -> str:
+    """The default of choice ``name`` in words: its value, or, for an option the ``model``
+    preset sets, what each preset gives (e.g. 'from model: membrane (paper), shell (clinical)')."""
+    if CHOICE_DEFAULTS[name] is not None:
+        return str(CHOICE_DEFAULTS[name])
+    return "from model: " + ", ".join(f"{preset[name]} ({m})" for m, preset in MODEL_PRESETS.items()
+                                      if name in preset)
+
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")
 
