@@ -45,6 +45,12 @@ HV_SAFETY = 1.4  # dt <= HV_SAFETY / (spectral radius of the HV operator); FE li
 HV_POWER_ITERATIONS = 2  # power iterations per refresh, warm-started (the mode changes slowly)
 HV_REFRESH_STEPS = 4  # steps between refreshes (nodes move < 1 % of a spacing in between)
 HV_MARGIN = 1.1  # a warm-started power iteration may underestimate the radius slightly
+# dt <= VISCOUS_SAFETY rho h_min^2 / mu: the viscous term is forward Euler in the mid-point scheme.
+# Its measured limit on the MFPM operator (eigenvalues of the axisymmetric viscous matrix,
+# ``stability.forward_euler_viscous_limit``) is 0.547 (v_x) / 0.579 (v_y) at coarse and paper
+# resolution; 0.25, the classical five-point-stencil value, keeps a margin of 2.2 for nodes that the
+# flow pushes together (nearest-neighbour spacing down to 0.69 h, docs/model.md section 4).
+VISCOUS_SAFETY = 0.25
 MEMBRANE_SAFETY = 0.4  # membrane sub-step <= MEMBRANE_SAFETY * min chord / wave speed
 P_REF = 1.0  # Pa: floor of the normalisation of the coupling residual (meaningful at rest)
 BLOWUP_SPEED = 50.0  # m/s: a fluid speed above this is a blow-up (physical speeds ~0.2-1 m/s)
@@ -149,10 +155,15 @@ class CoupledModel:
 
     # ---------------------------------------------------------------------------------------
     def time_step(self):
-        """dt [s] from the acoustic CFL condition and the hyperviscosity's stability limit."""
+        """dt [s] from the acoustic CFL condition, dt <= cfl h_min / (c + v_max), and the viscous
+        limit, dt <= VISCOUS_SAFETY rho h_min^2 / mu (rho the smallest density); the
+        hyperviscosity's limit (``dt_limits``) sets its own sub-steps."""
         si = self.si
         vmax = max_speed(self.vx, self.vy)
         dt_ac = si["cfl"] * self.h_min / (self.c + vmax)
+        mu = si["mu"]
+        dt_visc = (VISCOUS_SAFETY * float(self.rho.min()) * self.h_min ** 2 / mu if mu > 0
+                   else math.inf)
         gamma = si["hyperviscosity"]
         if gamma > 0:
             # the stiffest hyperviscous mode moves with the nodes: refresh the estimate
@@ -165,8 +176,8 @@ class CoupledModel:
             dt_hv = HV_SAFETY / (gamma * self.c * self.hv_radius_unit * HV_MARGIN)
         else:
             dt_hv = math.inf
-        self.dt_limits = {"acoustic": dt_ac, "hyperviscosity": dt_hv}
-        return dt_ac
+        self.dt_limits = {"acoustic": dt_ac, "viscous": dt_visc, "hyperviscosity": dt_hv}
+        return min(dt_ac, dt_visc)
 
     def _velocity_derivatives(self, ops, x, y, vx, vy, dv, div, nodes=None, laplacian=False,
                               time_ms=None):
@@ -385,6 +396,7 @@ def simulate(params: RunParams, progress=None, reuse: bool = True) -> RunResult:
     max_residual = 0.0
     substeps = []
     hv_substeps = []
+    viscous_limited = 0
     vol0 = prev["chamber_volume"]
     dens_vol0 = model.density_volume()
     max_vol_mismatch = 0.0
@@ -398,6 +410,7 @@ def simulate(params: RunParams, progress=None, reuse: bool = True) -> RunResult:
         dts.append(dt)
         substeps.append(model.last_substeps)
         hv_substeps.append(model.last_hv_substeps)
+        viscous_limited += model.dt_limits["viscous"] < model.dt_limits["acoustic"]
         max_residual = max(max_residual, model.last_residual)
         cur = model.probe()
         t = model.t
@@ -472,6 +485,7 @@ def simulate(params: RunParams, progress=None, reuse: bool = True) -> RunResult:
         "neighbour_searches": model.neighbours.searches,
         "apex_fit_nodes": model.n_apex_fit,
         "acoustic_cfl": si["cfl"],
+        "viscous_limited_steps": int(viscous_limited),
     }
     diagnostics.update(extra)
     return RunResult(params=params, time=out_t * 1e3, histories=hist, snapshot_time=snapshot_time,
