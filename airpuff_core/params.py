@@ -83,7 +83,7 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("pmax", "kPa", 10.0, 0.0, 50.0, "peak air-jet pressure", low_inc=True),
         _p("R", "mm", 7.0, 3.0, 15.0, "radius of the corneal arc"),
         _p("r_post", "mm", 2.04, 0.5, 10.0, "radius of the rigid posterior support (sector geometry)"),
-        _p("alpha0", "deg", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True),
+        _p("alpha0", "degree", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True),
         _p("rho_cornea", "kg/m^3", 1000.0, 100.0, 5000.0, "density of the cornea"),
         _p("rho_fluid", "kg/m^3", 1000.0, 100.0, 5000.0, "reference density of the aqueous humour"),
         _p("mu", "Pa s", 7.5e-4, 0.0, 10.0, "viscosity of the aqueous humour", low_inc=True),

@@ -39,6 +39,7 @@ import numpy as np
 import xarray as xr
 
 from airpuff_core import __version__
+from airpuff_core.dataset import global_attributes, open_dataset, time_coordinate
 from airpuff_core.params import PARAMETERS, SWEPT, RunParams
 from airpuff_core.result import METRICS
 
@@ -358,7 +359,7 @@ def combine(spec, points_dir: str | os.PathLike) -> xr.Dataset:
         keys[idx] = key
         path = point_path(points_dir, key)
         if path.exists():
-            with xr.open_dataset(path, engine="netcdf4") as ds:
+            with open_dataset(path, engine="netcdf4") as ds:
                 ds = ds.load()
             status[idx] = "ok"
             message[idx] = _notes_message({m: ds[m].attrs.get("comment", "") for m in METRICS if m in ds})
@@ -412,7 +413,7 @@ def combine(spec, points_dir: str | os.PathLike) -> xr.Dataset:
         p = PARAMETERS[name]
         coords[name] = (name, np.asarray(getattr(spec, name), float),
                         {"units": p.unit, "long_name": p.description})
-    coords["time"] = ("time", time, {"units": "ms", "long_name": "time"})
+    coords["time"] = time_coordinate(time)
     for name, value in options.items():
         if name in PARAMETERS:  # numeric options as scalar coordinates, as in a per-run file
             coords[name] = ((), float(value), {"units": PARAMETERS[name].unit,
@@ -420,12 +421,10 @@ def combine(spec, points_dir: str | os.PathLike) -> xr.Dataset:
 
     n_ok = int((status == "ok").sum())
     n_failed = int((status == "failed").sum())
-    attrs: dict[str, Any] = {
-        "Conventions": "CF-1.10",
-        "title": "airpuff parameter sweep: corneal air-puff test over E0, IOP, thickness, pmax",
-        "software": "airpuff",
-        "software_version": __version__,
-        "history": time_stamp() + " combined by sweep.store.combine from per-point files",
+    attrs: dict[str, Any] = global_attributes(
+        "airpuff parameter sweep: corneal air-puff test over E0, IOP, thickness, pmax",
+        "combined by sweep.store.combine from per-point files")
+    attrs.update({
         "sweep_json": json.dumps(spec.to_dict(), sort_keys=True),
         "run_options_json": json.dumps(options, sort_keys=True),
         "n_points": spec.n_points,
@@ -433,14 +432,10 @@ def combine(spec, points_dir: str | os.PathLike) -> xr.Dataset:
         "n_failed": n_failed,
         "n_missing": spec.n_points - n_ok - n_failed,
         "point_files": str(points_dir / "<point_key>.nc"),
-    }
+    })
     for name, value in options.items():
         attrs[f"param_{name}"] = value
     return xr.Dataset(data_vars, coords=coords, attrs=attrs)
-
-
-def time_stamp() -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
 def write_sweep(spec, points_dir: str | os.PathLike, path: str | os.PathLike) -> Path:
