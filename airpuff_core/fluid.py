@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import SimulationError
 from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
-from .kernels.neighbours import build_neighbours, max_squared_move
+from .kernels.neighbours import AXIS_EPS, build_neighbours, max_squared_move
 
 MAX_NEIGHBOURS = 128
 COND_MAX = 1e8  # largest accepted 1-norm condition number of a scaled moment matrix
@@ -103,6 +103,11 @@ class Operators:
         self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.uint32)
         self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
+        self.lap_c = np.zeros(n * MAX_NEIGHBOURS)  # the linearly consistent Laplacian's
+        # weight of the inner product in which the Brookshaw Laplacian is self-adjoint: the node
+        # area, halved on the axis (an off-axis node stands for itself and its mirror image, a
+        # node on the axis only for itself)
+        self.adjoint_weight = area.copy()
         self.cond = np.zeros(n)  # 1-norm condition number of each node's scaled moment matrix
         self.all_nodes = np.arange(n)
         self._no_fields = np.zeros((0, n))
@@ -139,9 +144,11 @@ class Operators:
             self.start[:] = t.start
         status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
                                   t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
-                                  self.count, self.nbr, self.mirrored, self.lap_b, laplacian)
+                                  self.count, self.nbr, self.mirrored, self.lap_b, self.lap_c,
+                                  laplacian)
         if laplacian:
             self.has_laplacian = True
+            np.multiply(self.area, np.where(x < AXIS_EPS, 0.5, 1.0), out=self.adjoint_weight)
         if status:
             i = status - 1
             raise SimulationError(
@@ -163,14 +170,20 @@ class Operators:
             raise RuntimeError("no Brookshaw pair lists: build with laplacian=True first")
         return self.start, self.nbr, self.mirrored, self.count, self.lap_b
 
+    def hyperviscosity_args(self):
+        """(start, nbr, mirrored, count, lap_b, lap_c, weight) for the hyperviscosity kernels."""
+        return (*self.laplacian_args(), self.lap_c, self.adjoint_weight)
+
     def hyperviscous(self, f, parity, scale, work1, work2, out):
-        hyperviscous_term(f, parity, *self.laplacian_args(), scale, work1, work2, out)
+        """out = scale * K^* L K f, the hyperviscous term (``kernels.mfpm.hyperviscous_term``)."""
+        hyperviscous_term(f, parity, *self.hyperviscosity_args(), scale, work1, work2, out)
         return out
 
     def hyperviscous_spectral_radius(self, scale, start=None, iterations=60):
-        """Largest |eigenvalue| of f -> scale * L^3 f by power iteration, and its eigenvector.
+        """Largest |eigenvalue| of f -> scale * K^* L K f by power iteration, and its eigenvector.
 
-        L has real non-positive eigenvalues, so this converges to the stiffest grid mode.  Nodes
+        The operator is self-adjoint and negative semi-definite in the area-weighted inner
+        product (real non-positive eigenvalues), so this converges to the stiffest grid mode.  Nodes
         that the flow pushes together raise it, so the solver re-runs a few iterations every step
         from the previous eigenvector (``start``).
         """

@@ -99,7 +99,7 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("c_slope", "1", 20.0, 0.0, 1000.0, "c = c0 + c_slope * v_max", low_inc=True),
         _p("coupling_tol", "1", 1e-4, 0.0, 0.1, "Dirichlet-Neumann tolerance, eq. (6)"),
         _p("t_end", "ms", 35.0, 0.0, 10000.0, "simulated time"),
-        _p("hyperviscosity", "1", 0.15, 0.0, 10.0,
+        _p("hyperviscosity", "1", 0.25, 0.0, 10.0,
            "strength gamma of the stabilising hyperviscosity gamma c h^5 L^3 (0 switches it off)",
            low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),

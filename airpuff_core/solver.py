@@ -229,7 +229,7 @@ class CoupledModel:
             n_hv = max(1, int(math.ceil(dt / self.dt_limits["hyperviscosity"])))
             self.last_hv_substeps = n_hv
             hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx,
-                                         self.pinned_vy, *ops_n.laplacian_args(), scale, dt,
+                                         self.pinned_vy, *ops_n.hyperviscosity_args(), scale, dt,
                                          n_hv, self._hv_work,
                                          w["hv_rho"], w["hv_vx"], w["hv_vy"])
             w["hv_rho"] /= dt

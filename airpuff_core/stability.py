@@ -52,7 +52,7 @@ def _pack(model, dofs):
 def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, eps_v=1e-6,
                     eps_x=1e-9) -> StabilityReport:
     """Eigenvalues of the linearised one-step map about rest, with pmax forced to 0."""
-    params = params.replace(pmax=0.0, c_rule="fixed", coupling_tol=1e-10,
+    params = params.replace(pmax=0.0, c_rule="fixed", coupling_tol=1e-9,
                             max_coupling_iterations=200)
     model = CoupledModel(params)
     if dt is None:
