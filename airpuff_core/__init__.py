@@ -5,13 +5,14 @@ Public API::
     from airpuff_core import RunParams, simulate
     result = simulate(RunParams(E0=0.5, IOP=16, resolution="coarse"))
     result.metrics            # P1, P2, CH, IOPg, IOPcc (mmHg), t_A1, t_A2, t_HC (ms), DA (mm), ...
-    result.to_dataset()       # CF-annotated xarray.Dataset (SPEC section 7)
+    result.to_dataset()       # CF-annotated xarray.Dataset (docs/model.md section 7)
+
+The modules, in the order of a run, are described in docs/model.md section 9.
 """
 
-__version__ = "0.1.0"
-
-from .errors import SimulationError  # noqa: E402
-from .params import ParameterError, RunParams  # noqa: E402
+from .errors import SimulationError
+from .params import ParameterError, RunParams
+from .version import __version__
 
 
 def simulate(params, progress=None):

@@ -1,8 +1,9 @@
-"""RunResult <-> CF-annotated xarray.Dataset, atomic netCDF writing, and the CF attributes every
+"""netCDF files: atomic writing, the parameters a file was made with, and the CF attributes every
 file of the project shares (run, sweep point, ``sweep.nc``).
 
-The names, dimensions and units are the contract of docs/model.md section 7.  Run parameters are
-scalar coordinates (user units, with a ``units`` attribute) and are repeated as global attributes.
+The run's dataset itself is made by ``RunResult.to_dataset`` (``result.py``); its run parameters
+are scalar coordinates and global attributes, the full set as the JSON attribute
+``parameters_json``.
 
 CF-1.10 (checked with the IOOS compliance-checker, ``benchmarks/cf_check.py``): a coordinate named
 ``time`` is a CF time coordinate, so its units are ``ms since <reference>``.  The simulated puff has
@@ -21,10 +22,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from . import __version__
-from .params import CHOICES, PARAMETERS, RunParams
-from .result import HISTORIES, METRICS, SNAPSHOT_FIELDS, SNAPSHOT_LABELS, RunResult
-
+from .params import RunParams
+from .version import __version__
 
 CONVENTIONS = "CF-1.10"
 TIME_REFERENCE = "1970-01-01 00:00:00"  # stands for t = 0: a simulation has no calendar date
@@ -57,48 +56,6 @@ def open_dataset(path: str | os.PathLike, **kwargs) -> xr.Dataset:
     """``xarray.open_dataset`` for the project's files, with ``time`` kept as numbers [ms]
     (not decoded into dates from its CF reference)."""
     return xr.open_dataset(path, decode_times=False, **kwargs)
-
-
-def result_to_dataset(result: RunResult) -> xr.Dataset:
-    """Build the per-run dataset of SPEC section 7 from a RunResult."""
-    data_vars = {}
-    for name, (unit, long_name) in HISTORIES.items():
-        data_vars[name] = xr.Variable(("time",), np.asarray(result.histories[name], dtype=float),
-                                      {"units": unit, "long_name": long_name})
-    for name, (dim, unit, long_name) in SNAPSHOT_FIELDS.items():
-        data_vars[name] = xr.Variable(("snapshot", dim), np.asarray(result.snapshots[name], float),
-                                      {"units": unit, "long_name": long_name})
-    for name, (unit, long_name) in METRICS.items():
-        attrs = {"units": unit, "long_name": long_name}
-        note = result.metric_notes.get(name)
-        if note:
-            attrs["comment"] = note
-        data_vars[name] = xr.Variable((), float(result.metrics.get(name, np.nan)), attrs)
-
-    coords = {
-        "time": time_coordinate(result.time),
-        "snapshot": ("snapshot", np.arange(len(SNAPSHOT_LABELS)), {"long_name": "snapshot index"}),
-        "snapshot_label": ("snapshot", np.array(SNAPSHOT_LABELS, dtype=object),
-                           {"long_name": "instant of the snapshot"}),
-        "snapshot_time": ("snapshot", np.asarray(result.snapshot_time, float),
-                          {"units": "ms", "long_name": "time of the snapshot"}),
-    }
-    p = result.params
-    for name, spec in PARAMETERS.items():
-        coords[name] = ((), float(getattr(p, name)), {"units": spec.unit, "long_name": spec.description})
-
-    attrs = global_attributes(
-        "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
-        f"simulate ({p.resolution} resolution, t_end {p.t_end:g} ms)")
-    attrs["parameters_json"] = json.dumps(p.to_dict(), sort_keys=True)
-    for name in CHOICES:
-        attrs[name] = getattr(p, name)
-    for name, spec in PARAMETERS.items():
-        attrs[f"param_{name}"] = float(getattr(p, name))
-    for k, v in result.diagnostics.items():
-        if isinstance(v, (int, float, str, np.integer, np.floating)):
-            attrs[f"solver_{k}"] = v if not isinstance(v, np.generic) else v.item()
-    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
 
 
 def params_from_dataset(ds: xr.Dataset) -> RunParams:

@@ -16,6 +16,7 @@ from .errors import SimulationError
 from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
 from .kernels.neighbours import AXIS_EPS, build_neighbours, max_squared_move
 
+KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
 MAX_NEIGHBOURS = 128
 COND_MAX = 1e8  # largest accepted 1-norm condition number of a scaled moment matrix
 SKIN = 0.15  # neighbour lists search (1 + SKIN) times the support, and are reused until a node

@@ -1,7 +1,7 @@
 """Reference configuration of the anterior chamber: fluid nodes, their kinds, spacing and volumes.
 
 Meridian half-plane x >= 0 (x: distance from the axis, y: along the axis), origin at the centre of
-the corneal sphere, apex at (0, R).  Two chamber shapes (SPEC section 2):
+the corneal sphere, apex at (0, R).  Two chamber shapes (docs/model.md section 2):
 
 - ``sector``: r_post <= rho <= R, 0 <= phi <= alpha0 (the paper's spherical sector);
 - ``cap``: rho <= R above the plane y = R cos(alpha0) through the limbus.
@@ -21,12 +21,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
-from .kernels.fluid import AXIS, CORNEA, INTERIOR, WALL
 from .kernels.membrane import cornea_polygon_volume
+from .kernels.neighbours import nearest_node_sums
+from .kernels.nodes import AXIS, CORNEA, INTERIOR, WALL
 
-# target fluid node counts (SPEC section 2) and the polar lattices (n_rho, n_phi)
+# target fluid node counts (docs/model.md section 2) and the polar lattices (n_rho, n_phi)
 TARGET_NODES = {"coarse": 300, "paper": 1134, "fine": 4500}
 POLAR_LATTICE = {"coarse": (14, 21), "paper": (27, 42), "fine": (54, 84)}
 
@@ -39,23 +39,12 @@ class Chamber:
     h: np.ndarray  # m, local node spacing
     area: np.ndarray  # m^2, area in the meridian plane
     volume: np.ndarray  # m^3, volume of revolution
-    cornea: np.ndarray  # indices of the cornea nodes, apex first
+    cornea_nodes: np.ndarray  # indices of the cornea nodes, apex first
     phi_cornea: np.ndarray  # rad, reference angle of each cornea node
-    geometry: str
-    layout: str
-    R: float
-    r_post: float
-    alpha0: float
 
     @property
     def n(self) -> int:
         return self.x.shape[0]
-
-    def exact_area(self) -> float:
-        return exact_area(self.geometry, self.R, self.r_post, self.alpha0)
-
-    def exact_volume(self) -> float:
-        return exact_volume(self.geometry, self.R, self.r_post, self.alpha0)
 
 
 def exact_area(geometry, R, r_post, alpha0):
@@ -158,46 +147,6 @@ def _inside(geometry, x, y, R, r_post, alpha0):
     return (rho <= R) & (y >= R * math.cos(alpha0)) & (x >= 0)
 
 
-@njit(cache=True)
-def _nearest_node_sums(x, y, sx, sy, cell, area_out, vol_out, dA):
-    """Assign each sample (sx, sy) to its nearest node; accumulate dA and 2 pi x dA."""
-    n = x.shape[0]
-    xmin = x.min() - cell
-    ymin = y.min() - cell
-    ncx = int((x.max() - xmin) / cell) + 2
-    ncy = int((y.max() - ymin) / cell) + 2
-    start = np.zeros(ncx * ncy + 1, np.int64)
-    cid = np.empty(n, np.int64)
-    for i in range(n):
-        c = int((x[i] - xmin) / cell) * ncy + int((y[i] - ymin) / cell)
-        cid[i] = c
-        start[c + 1] += 1
-    for c in range(ncx * ncy):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        order[fill[cid[i]]] = i
-        fill[cid[i]] += 1
-    for s in range(sx.shape[0]):
-        cx = int((sx[s] - xmin) / cell)
-        cy = int((sy[s] - ymin) / cell)
-        best = -1
-        bd = 1e300
-        for ix in range(max(cx - 2, 0), min(cx + 3, ncx)):
-            for iy in range(max(cy - 2, 0), min(cy + 3, ncy)):
-                c = ix * ncy + iy
-                for t in range(start[c], start[c + 1]):
-                    j = order[t]
-                    d = (x[j] - sx[s]) ** 2 + (y[j] - sy[s]) ** 2
-                    if d < bd:
-                        bd = d
-                        best = j
-        if best >= 0:
-            area_out[best] += dA
-            vol_out[best] += 2.0 * np.pi * sx[s] * dA
-
-
 def _areas_and_volumes(geometry, x, y, h, R, r_post, alpha0, per_spacing=8):
     ds = h.min() / per_spacing
     gx = np.arange(ds / 2, x.max() + ds, ds)
@@ -207,7 +156,7 @@ def _areas_and_volumes(geometry, x, y, h, R, r_post, alpha0, per_spacing=8):
     sx, sy = SX[inside].copy(), SY[inside].copy()
     area = np.zeros_like(x)
     vol = np.zeros_like(x)
-    _nearest_node_sums(x, y, sx, sy, h.max(), area, vol, ds * ds)
+    nearest_node_sums(x, y, sx, sy, h.max(), area, vol, ds * ds)
     if np.any(area <= 0):
         raise RuntimeError("a fluid node received no area: node layout is degenerate")
     area *= exact_area(geometry, R, r_post, alpha0) / area.sum()
@@ -237,8 +186,7 @@ def build_chamber(geometry, layout, resolution, R, r_post, alpha0) -> Chamber:
             n_rings = _isotropic_rings_for(TARGET_NODES[resolution], R, r_post, alpha0)
             x, y, kind, h = _sector_isotropic(R, r_post, alpha0, n_rings)
     else:
-        if layout == "polar":
-            raise ValueError("layout 'polar' exists only for geometry 'sector'")
+        # (RunParams.validate allows no polar layout here: the polar lattice is a sector's)
         # spacing that gives about the target count in the cap's area
         area = exact_area("cap", R, r_post, alpha0)
         spacing = math.sqrt(area / TARGET_NODES[resolution])
@@ -248,7 +196,7 @@ def build_chamber(geometry, layout, resolution, R, r_post, alpha0) -> Chamber:
     order = np.argsort(phi)
     cornea, phi = cornea[order], phi[order]
     area_, vol = _areas_and_volumes(geometry, x, y, h, R, r_post, alpha0)
-    return Chamber(x, y, kind, h, area_, vol, cornea, phi, geometry, layout, R, r_post, alpha0)
+    return Chamber(x, y, kind, h, area_, vol, cornea, phi)
 
 
 def chamber_volume(geometry, xc, yc, r_post, alpha0) -> float:

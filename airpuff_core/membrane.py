@@ -1,4 +1,5 @@
-"""The cornea: reference configuration, IOP prestress and the discrete static equilibrium.
+"""The cornea: reference configuration, IOP prestress, the discrete static equilibrium, and the
+advance in time (Verlet sub-steps of ``kernels/membrane.py``) that the coupling calls.
 
 The drawn arc (radius R) is the loaded state at IOP p0.  For a spherical membrane under uniform
 pressure the equibiaxial tension is p0 R / 2 (Laplace); for an equibiaxial membrane the Cauchy
@@ -15,12 +16,15 @@ membrane is in equilibrium with these loads to second order; the exact discrete 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .kernels.membrane import (add_pressure_loads, even_fit_curvature, fung_resultants,
-                               internal_forces)
+from .kernels.membrane import (add_pressure_loads, advance_membrane, even_fit_curvature,
+                               fung_resultants, internal_forces, max_wave_speed)
+from .params import PRESTRETCH_MAX
+
+MEMBRANE_SAFETY = 0.4  # membrane sub-step <= MEMBRANE_SAFETY * min chord / wave speed
 
 
 def equibiaxial_tension(lam, Ebar, nu, k):
@@ -30,13 +34,17 @@ def equibiaxial_tension(lam, Ebar, nu, k):
 
 
 def prestretch(p0, R, Ebar, nu, k):
-    """lambda0 with N(lambda0, lambda0) = p0 R / 2 (bisection; N is increasing in lambda)."""
+    """lambda0 with N(lambda0, lambda0) = p0 R / 2 (bisection; N is increasing in lambda).
+
+    ``RunParams.validate`` rejects the parameters that need lambda0 > PRESTRETCH_MAX (E0 below
+    ``params.softest_E0``), so the error here is reached only by direct calls."""
     target = 0.5 * p0 * R
     lo, hi = 1.0, 1.0
     while equibiaxial_tension(hi, Ebar, nu, k) < target:
-        hi = 1.0 + 2.0 * (hi - 1.0) + 1e-3
-        if hi > 10.0:
-            raise ValueError("no prestretch below 10 balances the IOP: the cornea is too soft")
+        if hi >= PRESTRETCH_MAX:
+            raise ValueError(f"no prestretch up to {PRESTRETCH_MAX:g} balances the pressure "
+                             f"{p0:g} Pa: the membrane (Ebar = {Ebar:g} N/m) is too soft")
+        hi = min(1.0 + 2.0 * (hi - 1.0) + 1e-3, PRESTRETCH_MAX)
     for _ in range(200):
         mid = 0.5 * (lo + hi)
         if equibiaxial_tension(mid, Ebar, nu, k) < target:
@@ -61,10 +69,29 @@ class MembraneModel:
     nu: float
     k: float
     rho_h: float  # mass per reference area [kg/m^2]
+    _work: tuple = field(init=False, repr=False)  # forces Fx, Fy [N] and load q [Pa] of advance()
+
+    def __post_init__(self):
+        self._work = tuple(np.empty(self.n) for _ in range(3))
 
     @property
     def n(self):
         return self.phi.shape[0]
+
+    def substeps(self, X, Y, dt):
+        """Verlet sub-steps that resolve the fastest membrane wave of the state (X, Y) [m] in a
+        step of dt [s]: dt / n <= MEMBRANE_SAFETY * min chord / wave speed."""
+        c_wave = max_wave_speed(X, Y, self.L0, self.S0, self.Ebar, self.nu, self.k, self.rho_h)
+        return max(1, int(math.ceil(dt / (MEMBRANE_SAFETY * self.L0.min() / c_wave))))
+
+    def advance(self, X, Y, VX, VY, p_start, p_end, t_start, dt, n_sub, jet):
+        """Advance the state (X, Y [m], VX, VY [m/s], in place) from t_start to t_start + dt [s] in
+        n_sub Verlet sub-steps, with the fluid pressure on the cornea going linearly from p_start
+        to p_end [Pa] and the air jet ``jet`` (``SIParams.jet()``) outside."""
+        w = self._work
+        advance_membrane(X, Y, VX, VY, self.mass, self.phi, self.L0, self.S0, self.A0, self.Ebar,
+                         self.nu, self.k, p_start, p_end, t_start, dt, n_sub, jet,
+                         w[0], w[1], w[2])
 
     def forces(self, X, Y, q):
         """Total nodal forces [N] at positions (X, Y) under net inside pressure q [Pa]."""
@@ -163,12 +190,6 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
             break
     rel, X, Y = best
     return X, Y, rel
-
-
-def jet_pressure(t, phi, pmax, a, b, T, t0):
-    """Eq. (11): p_a = pmax exp(-a sin^2 phi) exp(-b (t - t0)^2 / T^2)  [Pa], for arrays of times
-    t [s] or reference angles phi [rad] (numpy broadcasting; the kernels use ``air_jet``)."""
-    return pmax * np.exp(-a * np.sin(phi) ** 2) * np.exp(-b * (np.asarray(t) - t0) ** 2 / T ** 2)
 
 
 # m: apex curvature is fitted over the nodes with x <= this radius.  It must be small against the

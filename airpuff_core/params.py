@@ -1,9 +1,11 @@
 """Run parameters of one air-puff simulation, in user units, with validation and SI conversion.
 
 Every user-facing edge (CLI, HTTP API, netCDF) speaks the clinically customary units listed in
-``PARAMETERS``; the solver works in SI.  ``RunParams`` holds user units; ``RunParams.si()`` returns
-the SI values the solver uses.  Invalid values raise :class:`ParameterError`, whose message names
-the parameter and its accepted range, so that the CLI can print it on one line (exit code 2) and the
+``PARAMETERS``; the solver works in SI.  ``RunParams`` holds user units and is validated once, when
+it is made (``RunParams.validate``); ``RunParams.si()`` gives the :class:`SIParams` the solver
+uses, built once per run.  Invalid values, alone or in combination (a cornea too soft to carry the
+IOP, a layout the geometry does not have), raise :class:`ParameterError`, whose message names the
+parameter and its accepted range, so that the CLI can print it on one line (exit code 2) and the
 HTTP API can return it as a 422.
 """
 
@@ -14,13 +16,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+import numpy as np
+
 MMHG_PA = 133.322  # Pa per mmHg
 
-RESOLUTIONS = ("coarse", "paper", "fine")
-GEOMETRIES = ("sector", "cap")
-LAYOUTS = ("isotropic", "polar")
-C_RULES = ("running_max", "per_step", "fixed")
-JET_START = ("as_written", "equilibrium")
+# The prestretch lambda0 that balances the IOP is sought below this (docs/model.md section 3); a
+# cornea that needs more is too soft for the membrane model.
+PRESTRETCH_MAX = 10.0
 
 
 class ParameterError(ValueError):
@@ -109,11 +111,11 @@ PARAMETERS: dict[str, ParamSpec] = {
 }
 
 CHOICES: dict[str, tuple[str, ...]] = {
-    "resolution": RESOLUTIONS,
-    "geometry": GEOMETRIES,
-    "layout": LAYOUTS,
-    "c_rule": C_RULES,
-    "jet_start": JET_START,
+    "resolution": ("coarse", "paper", "fine"),
+    "geometry": ("sector", "cap"),
+    "layout": ("isotropic", "polar"),
+    "c_rule": ("running_max", "per_step", "fixed"),
+    "jet_start": ("as_written", "equilibrium"),
 }
 CHOICE_DEFAULTS = {
     "resolution": "coarse",
@@ -138,11 +140,61 @@ INT_PARAMETERS = {
 }
 
 
-def _defaults() -> dict[str, Any]:
-    d: dict[str, Any] = {k: s.default for k, s in PARAMETERS.items()}
-    d.update(CHOICE_DEFAULTS)
-    d.update({k: v[0] for k, v in INT_PARAMETERS.items()})
-    return d
+def softest_E0(IOP, thickness, R, nu, fung_k):
+    """The smallest E0 [MPa] whose membrane carries the IOP [mmHg] on an arc of radius R [mm]
+    with a prestretch of at most PRESTRETCH_MAX (thickness in mm).
+
+    The equibiaxial tension of the Fung law (docs/model.md section 3) at lambda0 is
+    N = E0 h / (1 - nu^2) exp(Q) (1 + nu) E,  E = (lambda0^2 - 1) / 2,  Q = 2 k (1 + nu) E^2,
+    and Laplace's law asks N = p0 R / 2.  N is linear in E0.  Everything is taken in logarithms:
+    exp(Q) overflows for the default k at lambda0 = 10, and a product of tiny accepted values
+    (a thickness of 1e-320 mm) underflows.  Returns inf when no finite E0 will do.
+    """
+    E = 0.5 * (PRESTRETCH_MAX ** 2 - 1.0)
+    log_N_per_E0_Pa = (math.log(thickness) + math.log(1e-3) - math.log(1.0 - nu * nu)
+                       + math.log(1.0 + nu) + math.log(E) + 2.0 * fung_k * (1.0 + nu) * E * E)
+    log_target = math.log(0.5 * MMHG_PA * 1e-3) + math.log(IOP) + math.log(R)
+    log_E0_MPa = log_target - log_N_per_E0_Pa + math.log(1e-6)
+    return math.exp(log_E0_MPa) if log_E0_MPa < 700.0 else math.inf
+
+
+@dataclass(frozen=True)
+class SIParams:
+    """The numeric run parameters in SI units (m, s, kg, Pa, rad), as the solver uses them.
+
+    Made by ``RunParams.si()`` once per run.  A field whose user unit is not SI carries its SI
+    unit in its name (``E0_Pa``, where ``RunParams.E0`` is in MPa); the others have the name and
+    the unit of the ``RunParams`` field (see ``PARAMETERS``).
+    """
+
+    E0_Pa: float  # small-strain Young's modulus of the cornea
+    p0_Pa: float  # IOP, the reference pressure of the fluid
+    thickness_m: float  # corneal thickness h
+    pmax_Pa: float  # peak air-jet pressure
+    R_m: float  # radius of the corneal arc
+    r_post_m: float  # radius of the posterior support (sector)
+    alpha0_rad: float  # half-opening angle
+    rho_cornea: float  # kg/m^3
+    rho_fluid: float  # kg/m^3, reference density rho0 of the equation of state
+    mu: float  # Pa s
+    nu: float  # Poisson-type coupling of the membrane law
+    fung_k: float  # Fung exponent
+    a: float  # spatial decay of the air jet, eq. (11)
+    b: float  # temporal decay of the air jet, eq. (11)
+    T_s: float  # duration scale of the air jet, eq. (11)
+    t0_s: float  # time of the jet peak, eq. (11)
+    tait_gamma: float  # exponent of the equation of state (5)
+    c0: float  # m/s, base artificial sound speed
+    c_slope: float  # c = c0 + c_slope v_max
+    coupling_tol: float  # Dirichlet-Neumann tolerance, eq. (6)
+    t_end_s: float  # simulated time
+    hyperviscosity: float  # strength gamma of the hyperviscosity
+    output_interval_s: float  # interval of the stored time histories
+    cfl: float  # acoustic CFL number
+
+    def jet(self) -> np.ndarray:
+        """(pmax [Pa], a, b, T [s], t0 [s]): the arguments of the air-jet kernel, eq. (11)."""
+        return np.array([self.pmax_Pa, self.a, self.b, self.T_s, self.t0_s])
 
 
 @dataclass(frozen=True)
@@ -215,10 +267,33 @@ class RunParams:
             if isinstance(v, bool) or iv != v or not (lo <= iv <= hi):
                 raise ParameterError(name, v, f"an integer in [{lo}, {hi}]")
             object.__setattr__(self, name, iv)
+        self._check_combinations()
+
+    def _check_combinations(self) -> None:
+        """Values each in range that do not go together (docs/model.md section 1)."""
         if self.geometry == "sector" and not self.r_post < self.R:
             raise ParameterError("r_post", self.r_post, f"a number in (0.5, R={self.R:g}) mm")
-        if self.t0 > self.t_end * 10:
-            pass  # a jet that peaks after the end is allowed (pure rest runs); nothing to check
+        if self.layout == "polar" and self.geometry != "sector":
+            raise ParameterError("layout", self.layout,
+                                 "isotropic with geometry cap (the polar lattice is a sector's)")
+        if not self.E0 * 1e6 * self.thickness * 1e-3 > 0.0:
+            # the membrane stiffness E0 h [N/m] of the solver would underflow to 0
+            raise ParameterError("thickness", self.thickness,
+                                 f"a number in (0, 2] mm with E0 h > 0 in double precision "
+                                 f"(E0={self.E0:g} MPa)")
+        E0_min = softest_E0(self.IOP, self.thickness, self.R, self.nu, self.fung_k)
+        if self.E0 < E0_min:
+            spec = PARAMETERS["E0"]
+            others = (f"IOP={self.IOP:g} mmHg, thickness={self.thickness:g} mm, R={self.R:g} mm, "
+                      f"nu={self.nu:g}, fung_k={self.fung_k:g}")
+            if E0_min > spec.high:
+                accepted = (f"none in (0, {spec.high:g}] MPa with {others}: the membrane cannot "
+                            f"carry the IOP with a prestretch up to {PRESTRETCH_MAX:g} (raise "
+                            f"thickness or fung_k)")
+            else:
+                accepted = (f"a number of at least {E0_min:.3g} MPa with {others} (a softer cornea "
+                            f"needs a prestretch above {PRESTRETCH_MAX:g} to carry the IOP)")
+            raise ParameterError("E0", self.E0, accepted)
 
     # -- conversions ------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -226,39 +301,31 @@ class RunParams:
         d.pop("extra")
         return d
 
-    def si(self) -> dict[str, float]:
-        """SI values used by the solver (m, s, kg, Pa, rad)."""
-        return {
-            "E0": self.E0 * 1e6,
-            "p0": self.IOP * MMHG_PA,
-            "h": self.thickness * 1e-3,
-            "pmax": self.pmax * 1e3,
-            "R": self.R * 1e-3,
-            "r_post": self.r_post * 1e-3,
-            "alpha0": math.radians(self.alpha0),
-            "rho_c": self.rho_cornea,
-            "rho_f": self.rho_fluid,
-            "mu": self.mu,
-            "nu": self.nu,
-            "fung_k": self.fung_k,
-            "a": self.a,
-            "b": self.b,
-            "T": self.T * 1e-3,
-            "t0": self.t0 * 1e-3,
-            "gamma": self.tait_gamma,
-            "c0": self.c0,
-            "c_slope": self.c_slope,
-            "tol": self.coupling_tol,
-            "t_end": self.t_end * 1e-3,
-            "hyperviscosity": self.hyperviscosity,
-            "output_interval": self.output_interval * 1e-3,
-            "cfl": self.cfl,
-        }
-
-
-def units() -> dict[str, str]:
-    """Unit of every numeric parameter, keyed by name."""
-    return {k: s.unit for k, s in PARAMETERS.items()}
-
-
-DEFAULTS = _defaults()
+    def si(self) -> SIParams:
+        """The numeric parameters in SI units (call once per run)."""
+        return SIParams(
+            E0_Pa=self.E0 * 1e6,
+            p0_Pa=self.IOP * MMHG_PA,
+            thickness_m=self.thickness * 1e-3,
+            pmax_Pa=self.pmax * 1e3,
+            R_m=self.R * 1e-3,
+            r_post_m=self.r_post * 1e-3,
+            alpha0_rad=math.radians(self.alpha0),
+            rho_cornea=self.rho_cornea,
+            rho_fluid=self.rho_fluid,
+            mu=self.mu,
+            nu=self.nu,
+            fung_k=self.fung_k,
+            a=self.a,
+            b=self.b,
+            T_s=self.T * 1e-3,
+            t0_s=self.t0 * 1e-3,
+            tait_gamma=self.tait_gamma,
+            c0=self.c0,
+            c_slope=self.c_slope,
+            coupling_tol=self.coupling_tol,
+            t_end_s=self.t_end * 1e-3,
+            hyperviscosity=self.hyperviscosity,
+            output_interval_s=self.output_interval * 1e-3,
+            cfl=self.cfl,
+        )

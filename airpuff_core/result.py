@@ -1,18 +1,22 @@
-"""The result of one run: time histories, snapshots and metrics, in user units.
+"""The result of one run: time histories, snapshots and metrics, in user units, and its
+CF-annotated ``xarray.Dataset``.
 
-``RunResult`` is what :func:`airpuff_core.simulate` returns.  Its field names are the netCDF
-variable names of SPEC section 7 (a contract for the sweep and users' scripts); ``dataset.py``
-turns it into a CF-annotated ``xarray.Dataset``.
+``RunResult`` is what :func:`airpuff_core.simulate` returns.  ``METRICS``, ``HISTORIES`` and
+``SNAPSHOT_FIELDS`` name its contents with their units: they are the netCDF variables of
+docs/model.md section 7, a contract for the sweep and users' scripts.  Run parameters are scalar
+coordinates of the dataset (user units, with a ``units`` attribute) and are repeated as global
+attributes; ``dataset.py`` writes the file.
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .params import RunParams
+from .params import CHOICES, PARAMETERS, RunParams
 
 # metric name -> (unit, long name).  Missing metrics are NaN in arrays and None in JSON.
 METRICS: dict[str, tuple[str, str]] = {
@@ -82,6 +86,49 @@ class RunResult:
                 for k, v in self.metrics.items()}
 
     def to_dataset(self):
-        from .dataset import result_to_dataset
+        """The CF-annotated ``xarray.Dataset`` of the run (docs/model.md section 7)."""
+        import xarray as xr  # only here: the solver does not need xarray
 
-        return result_to_dataset(self)
+        from .dataset import global_attributes, time_coordinate
+
+        data_vars = {}
+        for name, (unit, long_name) in HISTORIES.items():
+            data_vars[name] = xr.Variable(("time",), np.asarray(self.histories[name], float),
+                                          {"units": unit, "long_name": long_name})
+        for name, (dim, unit, long_name) in SNAPSHOT_FIELDS.items():
+            data_vars[name] = xr.Variable(("snapshot", dim),
+                                          np.asarray(self.snapshots[name], float),
+                                          {"units": unit, "long_name": long_name})
+        for name, (unit, long_name) in METRICS.items():
+            attrs = {"units": unit, "long_name": long_name}
+            note = self.metric_notes.get(name)
+            if note:
+                attrs["comment"] = note
+            data_vars[name] = xr.Variable((), float(self.metrics.get(name, np.nan)), attrs)
+
+        coords = {
+            "time": time_coordinate(self.time),
+            "snapshot": ("snapshot", np.arange(len(SNAPSHOT_LABELS)),
+                         {"long_name": "snapshot index"}),
+            "snapshot_label": ("snapshot", np.array(SNAPSHOT_LABELS, dtype=object),
+                               {"long_name": "instant of the snapshot"}),
+            "snapshot_time": ("snapshot", np.asarray(self.snapshot_time, float),
+                              {"units": "ms", "long_name": "time of the snapshot"}),
+        }
+        p = self.params
+        for name, spec in PARAMETERS.items():
+            coords[name] = ((), float(getattr(p, name)),
+                            {"units": spec.unit, "long_name": spec.description})
+
+        attrs = global_attributes(
+            "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
+            f"simulate ({p.resolution} resolution, t_end {p.t_end:g} ms)")
+        attrs["parameters_json"] = json.dumps(p.to_dict(), sort_keys=True)
+        for name in CHOICES:
+            attrs[name] = getattr(p, name)
+        for name, spec in PARAMETERS.items():
+            attrs[f"param_{name}"] = float(getattr(p, name))
+        for k, v in self.diagnostics.items():
+            if isinstance(v, (int, float, str, np.integer, np.floating)):
+                attrs[f"solver_{k}"] = v if not isinstance(v, np.generic) else v.item()
+        return xr.Dataset(data_vars, coords=coords, attrs=attrs)

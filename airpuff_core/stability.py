@@ -1,4 +1,4 @@
-"""Linear stability of the coupled discrete system about the rest state (SPEC section 4).
+"""Linear stability of the coupled discrete system about the rest state (docs/model.md section 4).
 
 The step map S: (rho, v_fluid, X_cornea, V_cornea)^n -> (...)^{n+1} is linearised about rest by
 central differences (the coupling iterated to round-off, dt and c held fixed), and the eigenvalues
@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels.fluid import AXIS, INTERIOR
+from .kernels.nodes import AXIS, INTERIOR
 from .params import RunParams
-from .solver import CoupledModel
+from .coupling import CoupledModel
 
 
 @dataclass
@@ -60,7 +60,7 @@ def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, ep
     dofs = _dofs(model)
     base = {name: getattr(model, name).copy() for name in ("x", "y", "vx", "vy", "rho", "X", "Y",
                                                           "VX", "VY")}
-    scale = {"rho": eps_rho * model.si["rho_f"], "vx": eps_v, "vy": eps_v, "X": eps_x, "Y": eps_x,
+    scale = {"rho": eps_rho * model.si.rho_fluid, "vx": eps_v, "vy": eps_v, "X": eps_x, "Y": eps_x,
              "VX": eps_v, "VY": eps_v}
 
     def run(name, i, delta):
@@ -72,7 +72,7 @@ def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, ep
             if name in ("X", "Y", "VX", "VY"):
                 # the fluid interface nodes carry the cornea's position and velocity
                 fl = {"X": "x", "Y": "y", "VX": "vx", "VY": "vy"}[name]
-                getattr(model, fl)[model.cornea[i]] = arr[i]
+                getattr(model, fl)[model.cornea_nodes[i]] = arr[i]
         model.t = 0.0
         model.refresh_derivatives()
         model.step(dt=dt)

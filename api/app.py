@@ -1,4 +1,6 @@
-"""The FastAPI application: validate, persist the job, report status and metrics, serve netCDF.
+"""The FastAPI application: settings, lifespan (the job runner), auth, body limit, error format.
+
+The routes are in ``api.routes``.
 
 Long work never runs here.  ``POST /sweeps`` writes a job row (and its grid) to SQLite and answers
 202 with a Location; the job runner (``api.runner``, a thread that owns the Dask client) picks the
@@ -8,34 +10,27 @@ only the runner thread uses it).
 """
 
 
-import json
 import logging
 import secrets
 import sqlite3
-import uuid
 from contextlib import asynccontextmanager
-from typing import Any, Iterator, Optional
+from typing import Optional
 
-from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response, status
+from fastapi import Depends, FastAPI, HTTPException, Request, status
 from fastapi.encoders import jsonable_encoder
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
-from fastapi.openapi.docs import get_swagger_ui_html
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from airpuff_core import __version__
-from airpuff_core.params import PARAMETERS, SWEPT, ParameterError
-from airpuff_core.result import METRICS
+from airpuff_core.params import PARAMETERS
 
-from . import db, schemas
+from . import db, routes, schemas
 from .settings import Settings
 
 log = logging.getLogger("airpuff.api")
-
-JOB_STATUSES = ("queued", "running", "done", "failed", "cancelled")
-
 
 # -- validation errors --------------------------------------------------------------------------
 
@@ -71,10 +66,6 @@ _REQUEST_KEYS: list[str] = []
 
 def _request_keys() -> list[str]:
     return _REQUEST_KEYS
-
-
-def _problem_422(loc: list, field: str, msg: str, typ: str = "value_error") -> RequestValidationError:
-    return RequestValidationError([{"loc": loc, "field": field, "msg": msg, "type": typ}])
 
 
 # -- auth -----------------------------------------------------------------------------------------
@@ -159,7 +150,6 @@ def create_app(settings: Settings) -> FastAPI:
                 await anyio.to_thread.run_sync(runner.stop)
 
     auth = _auth_dependency(settings)
-    deps = [auth] if auth is not None else []
     app = FastAPI(
         title="airpuff",
         version=__version__,
@@ -197,202 +187,5 @@ def create_app(settings: Settings) -> FastAPI:
         return JSONResponse({"detail": "the job database is busy; retry shortly"}, 503,
                             headers={"Retry-After": "2"})
 
-    def get_db() -> Iterator[sqlite3.Connection]:
-        con = db.connect(settings.db_path)
-        try:
-            yield con
-        finally:
-            con.close()
-
-    not_found = {404: {"model": schemas.Problem, "description": "no job with this id"}}
-    unauthorized = {401: {"model": schemas.Problem, "description": "missing or wrong token"}} \
-        if settings.token else {}
-    invalid = {422: {"model": schemas.ValidationProblem,
-                     "description": "invalid input; `loc`/`field` name the offending field"}}
-
-    def job_or_404(con, job_id: str) -> sqlite3.Row:
-        row = db.get_job(con, job_id)
-        if row is None:
-            raise HTTPException(404, f"no sweep job with id {job_id!r}")
-        return row
-
-    def job_info(row: sqlite3.Row) -> dict[str, Any]:
-        spec = json.loads(row["spec_json"])
-        request = {name: spec[name] for name in SWEPT}
-        request.update(spec.get("options", {}))
-        base = f"/sweeps/{row['id']}"
-        return {
-            "id": row["id"], "status": row["status"], "points_total": row["n_points"],
-            "points_done": row["n_ok"], "points_failed": row["n_failed"],
-            "points_reused": row["n_reused"],
-            "created_at": db.iso(row["created_at"]), "started_at": db.iso(row["started_at"]),
-            "finished_at": db.iso(row["finished_at"]), "error": row["error"],
-            "request": request,
-            "links": {"self": base, "metrics": base + "/metrics", "dataset": base + "/dataset"},
-        }
-
-    # -- routes ------------------------------------------------------------------------------
-
-    @app.get("/health", response_model=schemas.Health, tags=["service"],
-             summary="Liveness of the API and state of the job runner (no token needed)")
-    def health(request: Request):
-        runner = request.app.state.runner
-        if runner is None:
-            return {"status": "ok", "version": __version__, "runner": "disabled"}
-        return {"status": "ok", "version": __version__, "runner": runner.state,
-                "runner_error": runner.error, "workers": runner.n_workers}
-
-    @app.post("/sweeps", status_code=202, response_model=schemas.Submitted, tags=["sweeps"],
-              dependencies=deps, responses={**invalid, **unauthorized},
-              summary="Submit a sweep; answers 202 with the job id and a Location header")
-    def submit(body: SweepRequest, response: Response, request: Request,  # type: ignore[valid-type]
-               con: sqlite3.Connection = Depends(get_db)):
-        from sweep.grid import SweepSpec
-        from sweep.store import point_key
-
-        values = body.model_dump()
-        axes = {name: values.pop(name) for name in SWEPT}
-        n = 1
-        for name in SWEPT:
-            n *= len(axes[name])
-        if n > settings.max_points:
-            shape = " x ".join(str(len(axes[k])) for k in SWEPT)
-            raise _problem_422(
-                ["body"], "E0 x IOP x thickness x pmax",
-                f"E0 x IOP x thickness x pmax: the grid has {shape} = {n} points; "
-                f"accepted: at most {settings.max_points} points", "grid_too_large")
-        try:
-            spec = SweepSpec(**axes, options=values).validate()
-            points = spec.points()
-        except ParameterError as err:
-            raise _problem_422(["body", err.name], err.name, str(err)) from None
-        job_id = uuid.uuid4().hex
-        rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
-        db.insert_job(con, job_id, spec.to_dict(), rows)
-        runner = request.app.state.runner
-        if runner is not None:
-            runner.wake()
-        response.headers["Location"] = f"/sweeps/{job_id}"
-        return {"id": job_id, "status": "queued", "points_total": len(rows)}
-
-    @app.get("/sweeps", response_model=schemas.JobList, tags=["sweeps"], dependencies=deps,
-             responses={**invalid, **unauthorized}, summary="List jobs, newest first")
-    def list_sweeps(limit: int = Query(100, ge=1, le=1000, description="jobs per page"),
-                    offset: int = Query(0, ge=0, le=2**62, description="jobs to skip"),
-                    status_: Optional[schemas.JobStatusName] = Query(
-                        None, alias="status", description="only jobs with this status"),
-                    con: sqlite3.Connection = Depends(get_db)):
-        rows = db.list_jobs(con, limit, offset, status_)
-        return {"jobs": [job_info(r) for r in rows], "total": db.count_jobs(con, status_)}
-
-    @app.get("/sweeps/{job_id}", response_model=schemas.JobInfo, tags=["sweeps"],
-             dependencies=deps, responses={**not_found, **unauthorized},
-             summary="Status of a job: points total, done and failed, timestamps, error")
-    def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-        return job_info(job_or_404(con, job_id))
-
-    @app.get("/sweeps/{job_id}/metrics", response_model=schemas.Metrics, tags=["sweeps"],
-             dependencies=deps, responses={**not_found, **unauthorized},
-             summary="ORA and Corvis-style metrics of every point (null where missing)")
-    def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-        row = job_or_404(con, job_id)
-        points = []
-        for p in db.job_points(con, job_id):
-            rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
-            for name in SWEPT:
-                rec[name] = p[name]
-            rec["status"] = p["status"]
-            rec["message"] = p["message"]
-            rec["reused"] = bool(p["reused"])
-            m = db.loads(p["metrics_json"]) if p["status"] == "ok" else None
-            for name in METRICS:
-                rec[name] = (m or {}).get(name)
-            points.append(rec)
-        return {"id": job_id, "status": row["status"], "units": schemas.units(), "points": points}
-
-    @app.get("/sweeps/{job_id}/dataset", tags=["sweeps"], dependencies=deps,
-             response_class=FileResponse,
-             responses={200: {"content": {"application/x-netcdf": {}},
-                              "description": "the combined netCDF of the sweep (CF-1.10)"},
-                        409: {"model": schemas.Problem, "description": "the job is not done"},
-                        **not_found, **unauthorized},
-             summary="Download the combined netCDF of a finished job")
-    def get_dataset(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-        row = job_or_404(con, job_id)
-        if row["status"] != "done":
-            raise HTTPException(409, f"job {job_id} is {row['status']}; its dataset exists once "
-                                     "it is done")
-        # The path comes from the job's own id as stored in the database, never from the request,
-        # and must lie inside this job's folder.
-        path = settings.job_dataset(row["id"]).resolve()
-        job_dir = (settings.jobs_dir / row["id"]).resolve()
-        if job_dir not in path.parents or not path.is_file():
-            raise HTTPException(404, f"the dataset of job {job_id} is missing on the server")
-        return FileResponse(path, media_type="application/x-netcdf",
-                            filename=f"airpuff-sweep-{row['id']}.nc")
-
-    @app.delete("/sweeps/{job_id}", response_model=schemas.JobInfo, tags=["sweeps"],
-                dependencies=deps,
-                responses={409: {"model": schemas.Problem, "description": "the job already ended"},
-                           **not_found, **unauthorized},
-                summary="Cancel a queued or running job (points already finished are kept)")
-    def cancel(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
-        row = job_or_404(con, job_id)
-        if row["status"] in ("queued", "running"):
-            db.cancel_job(con, job_id)
-            runner = request.app.state.runner
-            if runner is not None:
-                runner.wake()
-            row = job_or_404(con, job_id)
-        if row["status"] in ("done", "failed"):
-            raise HTTPException(409, f"job {job_id} already ended ({row['status']})")
-        return job_info(row)
-
-    @app.post("/identify", response_model=schemas.IdentifyResult, tags=["identify"],
-              dependencies=deps,
-              responses={409: {"model": schemas.Problem, "description": "the job is not done"},
-                         **not_found, **invalid, **unauthorized},
-              summary="Estimate IOP and E0 from a measurement, by interpolation on a finished "
-                      "sweep job")
-    def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):
-        # Interpolation only (milliseconds): the metrics come from the job database, so this
-        # handler never opens a netCDF file and never runs the solver.
-        from sweep.identify import IdentifyError, SweepTable, identify
-
-        if body.refine:
-            raise _problem_422(["body", "refine"], "refine",
-                               "refine: solver refinement is not offered over HTTP; accepted: "
-                               "false (use `airpuff identify --refine` on the downloaded dataset)")
-        row = job_or_404(con, body.job_id)
-        if row["status"] != "done":
-            raise HTTPException(409, f"job {body.job_id} is {row['status']}; identification "
-                                     "needs a finished (done) sweep")
-        records = []
-        for p in db.job_points(con, body.job_id):
-            rec = {name: p[name] for name in SWEPT}
-            rec["status"] = p["status"]
-            rec.update(db.loads(p["metrics_json"]) or {} if p["status"] == "ok" else {})
-            records.append(rec)
-        measurement = {k: (v["value"], v["sigma"])
-                       for k, v in body.measurement.model_dump().items() if v is not None}
-        try:
-            table = SweepTable.from_records(json.loads(row["spec_json"]), records)
-            est = identify(table, measurement, body.thickness, body.pmax)
-        except IdentifyError as err:
-            loc = ["body", "measurement", err.field] if err.field in schemas.MEASURABLE_UNITS \
-                else ["body", err.field]
-            raise _problem_422(loc, err.field, f"{err.field}: {err}",
-                               "out_of_range" if "outside" in str(err) else "value_error") from None
-        return {"job_id": body.job_id, **est.to_dict()}
-
-    # -- schema and docs (behind the token too, when one is set) -------------------------------
-
-    @app.get("/openapi.json", include_in_schema=False, dependencies=deps)
-    def openapi_json():
-        return JSONResponse(app.openapi())
-
-    @app.get("/docs", include_in_schema=False, dependencies=deps)
-    def docs():
-        return get_swagger_ui_html(openapi_url="/openapi.json", title="airpuff API")
-
+    app.include_router(routes.build_router(settings, SweepRequest, auth))
     return app

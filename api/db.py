@@ -1,7 +1,7 @@
 """SQLite store of jobs and points (WAL mode, busy timeout, explicit write transactions).
 
 Tables
-- ``jobs``: one row per submitted sweep (status queued -> running -> done | failed | cancelled).
+- ``jobs``: one row per submitted sweep (statuses and their transitions: ``api.status``).
 - ``points``: one row per point key (a hash of all parameters of one run), shared by all jobs, so an
   identical point is computed once; its netCDF lives in ``DATA_DIR/points/``.
 - ``job_points``: the grid of a job: (job, index) -> point key, swept values and the point's status
@@ -9,6 +9,7 @@ Tables
 
 Every write runs in ``BEGIN IMMEDIATE`` so that concurrent writers (the API's request threads and
 the runner thread) wait for each other (busy timeout) instead of failing on a lock upgrade.
+Every SQL statement of the service is a named function here; the API and the runner call them.
 """
 
 from __future__ import annotations
@@ -21,15 +22,17 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
+from .status import JOB_STATUSES, POINT_RESULTS, POINT_STATUSES, sql_list
+
 SCHEMA_VERSION = 1
 BUSY_TIMEOUT_MS = 30_000
 
-SCHEMA = """
+SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS jobs (
     seq          INTEGER PRIMARY KEY AUTOINCREMENT,
     id           TEXT NOT NULL UNIQUE,
     status       TEXT NOT NULL
-                 CHECK (status IN ('queued', 'running', 'done', 'failed', 'cancelled')),
+                 CHECK (status IN ({sql_list(JOB_STATUSES)})),
     spec_json    TEXT NOT NULL,
     n_points     INTEGER NOT NULL,
     created_at   REAL NOT NULL,
@@ -40,7 +43,7 @@ CREATE TABLE IF NOT EXISTS jobs (
 CREATE TABLE IF NOT EXISTS points (
     key          TEXT PRIMARY KEY,
     params_json  TEXT NOT NULL,
-    status       TEXT NOT NULL CHECK (status IN ('pending', 'ok', 'failed')),
+    status       TEXT NOT NULL CHECK (status IN ({sql_list(("pending",) + POINT_RESULTS)})),
     message      TEXT,
     metrics_json TEXT,
     wall_s       REAL,
@@ -57,7 +60,7 @@ CREATE TABLE IF NOT EXISTS job_points (
     thickness  REAL NOT NULL,
     pmax       REAL NOT NULL,
     status     TEXT NOT NULL DEFAULT 'pending'
-               CHECK (status IN ('pending', 'ok', 'failed', 'cancelled')),
+               CHECK (status IN ({sql_list(POINT_STATUSES)})),
     message    TEXT,
     reused     INTEGER NOT NULL DEFAULT 0,
     PRIMARY KEY (job_id, idx)
@@ -180,6 +183,139 @@ def job_points(con, job_id: str) -> list[sqlite3.Row]:
 
 def point_row(con, key: str) -> sqlite3.Row | None:
     return con.execute("SELECT * FROM points WHERE key = ?", (key,)).fetchone()
+
+
+# -- the runner's statements -----------------------------------------------------------------
+
+def requeue_running_jobs(con) -> int:
+    """Jobs left running by a previous server go back to the queue; returns how many."""
+    with write(con):
+        return con.execute("UPDATE jobs SET status = 'queued' WHERE status = 'running'").rowcount
+
+
+def queued_jobs(con) -> list[sqlite3.Row]:
+    """(id, seq, spec_json) of the queued jobs, oldest first."""
+    return con.execute("SELECT id, seq, spec_json FROM jobs WHERE status = 'queued' "
+                       "ORDER BY seq").fetchall()
+
+
+def claim_job(con, job_id: str) -> bool:
+    """queued -> running (started_at kept from an earlier run); False if no longer queued."""
+    with write(con):
+        return con.execute("UPDATE jobs SET status = 'running', "
+                           "started_at = COALESCE(started_at, ?) WHERE id = ? AND status = 'queued'",
+                           (now(), job_id)).rowcount == 1
+
+
+def end_job(con, job_id: str, status: str, error: str | None) -> None:
+    """running -> ``status`` (done or failed) with its error message."""
+    with write(con):
+        con.execute("UPDATE jobs SET status = ?, error = ?, finished_at = ? "
+                    "WHERE id = ? AND status = 'running'", (status, error, now(), job_id))
+
+
+def job_seq(con, job_id: str) -> int:
+    """Submission order of a job (0 if unknown): older jobs get higher Dask priority."""
+    row = con.execute("SELECT seq FROM jobs WHERE id = ?", (job_id,)).fetchone()
+    return row[0] if row else 0
+
+
+def pending_job_points(con, job_id: str) -> list[sqlite3.Row]:
+    """(idx, key) of the pending points of a job, in grid order."""
+    return con.execute("SELECT idx, key FROM job_points WHERE job_id = ? AND status = 'pending' "
+                       "ORDER BY idx", (job_id,)).fetchall()
+
+
+def set_job_point_key(con, job_id: str, idx: int, key: str) -> None:
+    """Follow the current key of a point stored with the key of an older version."""
+    with write(con):
+        con.execute("UPDATE job_points SET key = ? WHERE job_id = ? AND idx = ?",
+                    (key, job_id, idx))
+
+
+def mark_reused(con, rows: Iterable[tuple[str, str | None, str, str]]) -> None:
+    """Pending points of a job whose result is already stored: rows of (status, message, job id,
+    key)."""
+    with write(con):
+        con.executemany("UPDATE job_points SET status = ?, message = ?, reused = 1 "
+                        "WHERE job_id = ? AND key = ? AND status = 'pending'", list(rows))
+
+
+def needed_point_keys(con) -> set[str]:
+    """Keys of the points that a queued or running job still waits for."""
+    return {r[0] for r in con.execute(
+        "SELECT DISTINCT jp.key FROM job_points jp JOIN jobs j ON j.id = jp.job_id "
+        "WHERE jp.status = 'pending' AND j.status IN ('queued', 'running')")}
+
+
+def cancel_points_of_cancelled_jobs(con) -> None:
+    """Pending points of cancelled jobs become cancelled (jobs cancelled by an older version of
+    the API left them pending)."""
+    with write(con):
+        con.execute("UPDATE job_points SET status = 'cancelled', message = 'job cancelled' "
+                    "WHERE status = 'pending' AND job_id IN "
+                    "(SELECT id FROM jobs WHERE status = 'cancelled')")
+
+
+def upsert_pending_points(con, params_json_by_key: dict[str, str], submitted: bool) -> None:
+    """A ``points`` row, status pending, for each key (its parameters as JSON); ``submitted``
+    counts one submission to the cluster."""
+    with write(con):
+        con.executemany(
+            "INSERT INTO points (key, params_json, status, submissions) "
+            "VALUES (?, ?, 'pending', ?) ON CONFLICT (key) DO UPDATE SET "
+            "status = 'pending', submissions = submissions + ?",
+            [(k, text, int(submitted), int(submitted)) for k, text in params_json_by_key.items()])
+
+
+def record_point_results(con, results: Iterable[tuple[str, str | None, dict]]) -> None:
+    """The results of points, in one transaction: ``(key, id of the job that submitted it,
+    record)``.  The ``points`` row gets the record; every running job waiting for the key gets
+    the status and message (``reused`` unless it is the submitting job and the point was
+    computed)."""
+    t = now()
+    with write(con):
+        for key, job_id, rec in results:
+            computed = bool(rec.get("computed", True))
+            con.execute(
+                "UPDATE points SET status = ?, message = ?, metrics_json = ?, wall_s = ?, "
+                "computed_by = CASE WHEN ? THEN ? ELSE computed_by END, finished_at = ? "
+                "WHERE key = ?",
+                (rec["status"], rec.get("message") or None, json.dumps(rec.get("metrics") or {}),
+                 rec.get("wall_s"), computed, job_id, t, key))
+            con.execute(
+                "UPDATE job_points SET status = ?, message = ?, "
+                "reused = CASE WHEN job_id = ? AND ? THEN 0 ELSE 1 END "
+                "WHERE key = ? AND status = 'pending' AND job_id IN "
+                "(SELECT id FROM jobs WHERE status = 'running')",
+                (rec["status"], rec.get("message") or None, job_id, computed, key))
+
+
+def running_jobs_without_pending_points(con) -> list[sqlite3.Row]:
+    """(id, spec_json, n_points) of running jobs whose every point has its result."""
+    return con.execute(
+        "SELECT id, spec_json, n_points FROM jobs j WHERE status = 'running' AND NOT EXISTS "
+        "(SELECT 1 FROM job_points p WHERE p.job_id = j.id AND p.status = 'pending') "
+        "ORDER BY seq").fetchall()
+
+
+def job_point_keys(con, job_id: str) -> list[str]:
+    """The point keys of a job in grid (C) order."""
+    return [r[0] for r in con.execute("SELECT key FROM job_points WHERE job_id = ? ORDER BY idx",
+                                      (job_id,))]
+
+
+def job_point_counts(con, job_id: str) -> dict[str, int]:
+    """Point status -> number of points of a job."""
+    return dict(con.execute("SELECT status, COUNT(*) FROM job_points WHERE job_id = ? "
+                            "GROUP BY status", (job_id,)).fetchall())
+
+
+def first_failure_message(con, job_id: str) -> str | None:
+    """The message of a job's first failed point (grid order)."""
+    row = con.execute("SELECT message FROM job_points WHERE job_id = ? AND status = 'failed' "
+                      "ORDER BY idx LIMIT 1", (job_id,)).fetchone()
+    return row[0] if row else None
 
 
 def loads(text: str | None) -> Any:

@@ -1,19 +1,24 @@
 """The job runner: a thread that owns the Dask client and moves jobs through their states.
 
-One loop (period ``Settings.poll_interval``, woken early by the API on submit and cancel):
+The states and transitions are listed in ``api.status``; every SQL statement is a named function
+of ``api.db``.  One loop (period ``Settings.poll_interval``, woken early by the API on submit and
+cancel), one method per step:
 
-1. cancelled jobs (the API marks the job and its pending points ``cancelled`` in one
-   transaction): futures that no queued or running job needs are cancelled on the cluster;
-2. queued jobs (oldest first): claimed (``running``); each pending point is either taken from the
-   ``points`` table (same key, result file still on disk: *reused*), attached to a future that is
-   already computing that key for another job, or submitted as ``sweep.store.compute_point``
-   with ``pure=False``, ``retries`` and a priority that favours older jobs;
-3. finished futures: the point's netCDF file, which came back through Dask as bytes, is written
-   into the data directory by this thread (``sweep.store.save_point``), then the point's record
-   goes to ``points`` and to every running job waiting for that key, in one transaction;
-4. running jobs with no pending point: the point files are combined into the job's ``sweep.nc``
-   (only this thread touches netCDF in the server process) and the job becomes ``done`` (or
-   ``failed`` if every point failed or combining failed).
+1. ``_drop_cancelled`` -- cancelled jobs (the API marks the job and its pending points
+   ``cancelled`` in one transaction): futures that no queued or running job needs are cancelled
+   on the cluster;
+2. ``_start_queued`` -- queued jobs (oldest first) become ``running``; each pending point is
+   either taken from the ``points`` table (same key, result file still on disk: *reused*),
+   attached to a future that is already computing that key for another job, or submitted as
+   ``sweep.worker.compute_point`` with ``pure=False``, ``retries`` and a priority that favours
+   older jobs;
+3. ``_collect`` -- finished futures: the point's netCDF file, which came back through Dask as
+   bytes, is written into the data directory by this thread (``sweep.storage.save_point``), then
+   the point's record goes to ``points`` and to every running job waiting for that key, in one
+   transaction;
+4. ``_finish_jobs`` -- running jobs with no pending point: the point files are combined into the
+   job's ``sweep.nc`` (only this thread touches netCDF in the server process) and the job becomes
+   ``done`` (or ``failed`` if every point failed or combining failed).
 
 Why results travel back through Dask instead of workers writing into the data directory: with
 ``--scheduler`` the workers may run in other containers, on other hosts, in batch jobs or in
@@ -41,6 +46,7 @@ from pathlib import Path
 
 from . import db
 from .settings import Settings
+from .status import POINT_RESULTS
 
 log = logging.getLogger("airpuff.runner")
 
@@ -83,7 +89,7 @@ class Runner:
         self.client = None
         self.futures: dict[str, object] = {}  # point key -> Future
         self.trigger: dict[str, str] = {}  # point key -> id of the job that submitted it
-        self.params: dict[str, dict] = {}  # point key -> RunParams dict (for resubmission)
+        self.params: dict[str, object] = {}  # point key -> RunParams (for resubmission)
         self.lost: dict[str, int] = {}
         self._warmed: set[tuple] = set()
         self._last_info = 0.0
@@ -145,7 +151,7 @@ class Runner:
 
     def _connect(self) -> bool:
         """Warm the Numba cache, then start or join the cluster; retry until stopped."""
-        from sweep.cluster import make_client, warm_numba_cache
+        from sweep.cluster import make_client
 
         s = self.settings
         while not self._stop.is_set():
@@ -167,7 +173,7 @@ class Runner:
         """Compile the solver once per combination of kernel-selecting options (cheap after the
         first time: a short run that loads from the cache)."""
         from airpuff_core.params import CHOICES, RunParams
-        from sweep.cluster import warm_numba_cache
+        from sweep.numba_cache import warm_numba_cache
 
         params = RunParams.from_dict(options or {})
         tag = tuple(getattr(params, c) for c in CHOICES if c != "resolution")
@@ -199,36 +205,26 @@ class Runner:
 
     # -- one pass -----------------------------------------------------------------------------
     def _tick(self) -> None:
-        self._handle_cancelled()
-        self._claim_queued()
+        self._drop_cancelled()
+        self._start_queued()
         self._collect()
         self._finish_jobs()
         self._update_info()
 
     def _recover(self) -> None:
-        with db.write(self.con):
-            n = self.con.execute("UPDATE jobs SET status = 'queued' WHERE status = 'running'"
-                                 ).rowcount
+        n = db.requeue_running_jobs(self.con)
         if n:
             log.info("requeued %d job(s) left running by a previous server", n)
 
-    def _needed_keys(self) -> set[str]:
-        return {r[0] for r in self.con.execute(
-            "SELECT DISTINCT jp.key FROM job_points jp JOIN jobs j ON j.id = jp.job_id "
-            "WHERE jp.status = 'pending' AND j.status IN ('queued', 'running')")}
-
-    def _handle_cancelled(self) -> None:
+    def _drop_cancelled(self) -> None:
         """The API marks a cancelled job and its pending points in one transaction; here the
         futures that no queued or running job needs any more are cancelled on the cluster."""
-        n = self.con.execute("SELECT COUNT(*) FROM jobs WHERE status = 'cancelled'").fetchone()[0]
+        n = db.count_jobs(self.con, "cancelled")
         if n == self._n_cancelled:
             return
         self._n_cancelled = n
-        with db.write(self.con):  # points of jobs cancelled by an older version of the API
-            self.con.execute("UPDATE job_points SET status = 'cancelled', message = 'job "
-                             "cancelled' WHERE status = 'pending' AND job_id IN "
-                             "(SELECT id FROM jobs WHERE status = 'cancelled')")
-        needed = self._needed_keys()
+        db.cancel_points_of_cancelled_jobs(self.con)
+        needed = db.needed_point_keys(self.con)
         drop = [k for k in self.futures if k not in needed]
         if drop and self.client is not None:
             self.client.cancel([self.futures[k] for k in drop])
@@ -239,19 +235,13 @@ class Runner:
         if drop:
             log.info("cancelled %d point task(s) no job needs any more", len(drop))
 
-    def _claim_queued(self) -> None:
+    def _start_queued(self) -> None:
+        """queued -> running (or failed, if this version cannot run the stored job)."""
         from sweep.grid import SweepSpec
-        from sweep.store import point_key, read_point
 
-        queued = self.con.execute("SELECT id, seq, spec_json FROM jobs WHERE status = 'queued' "
-                                  "ORDER BY seq").fetchall()
-        for job in queued:
+        for job in db.queued_jobs(self.con):
             job_id = job["id"]
-            with db.write(self.con):
-                claimed = self.con.execute(
-                    "UPDATE jobs SET status = 'running', started_at = COALESCE(started_at, ?) "
-                    "WHERE id = ? AND status = 'queued'", (db.now(), job_id)).rowcount
-            if not claimed:
+            if not db.claim_job(self.con, job_id):
                 continue
             try:
                 spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
@@ -260,76 +250,79 @@ class Runner:
             except Exception as err:  # noqa: BLE001 - a stored spec this version cannot run
                 self._end_job(job_id, "failed", f"cannot start the job: {err}")
                 continue
-            pending = self.con.execute("SELECT idx, key FROM job_points WHERE job_id = ? "
-                                       "AND status = 'pending' ORDER BY idx", (job_id,)).fetchall()
-            reused, submit, on_disk = [], {}, {}
-            for row in pending:
-                params = points[row["idx"]]
-                key = point_key(params)
-                if key != row["key"]:  # keys of an older version: follow the current one
-                    with db.write(self.con):
-                        self.con.execute("UPDATE job_points SET key = ? WHERE job_id = ? AND "
-                                         "idx = ?", (key, job_id, row["idx"]))
-                if key in self.futures or key in submit or key in on_disk:
-                    continue  # already computing for another job (or listed twice)
-                stored = self._stored(key)
-                if stored is not None:
-                    reused.append((stored["status"], stored["message"], job_id, key))
-                    continue
-                found = read_point(self.settings.points_dir, key)
-                if found is not None:  # a file written just before a crash (no record yet)
-                    on_disk[key] = (params.to_dict(), {**found, "computed": False})
-                else:
-                    submit[key] = params.to_dict()
-            if reused:
-                with db.write(self.con):
-                    self.con.executemany(
-                        "UPDATE job_points SET status = ?, message = ?, reused = 1 "
-                        "WHERE job_id = ? AND key = ? AND status = 'pending'", reused)
-            if on_disk:
-                self._ensure_point_rows({k: p for k, (p, _) in on_disk.items()})
-                self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
-            self._submit(job_id, job["seq"], submit)
-            n_reused = len(reused) + len(on_disk)
-            log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
-                     job_id, len(points), n_reused, len(submit),
-                     len(pending) - n_reused - len(submit))
+            self._dispatch(job_id, job["seq"], points)
+
+    def _dispatch(self, job_id: str, seq: int, points: list) -> None:
+        """Each pending point of a job just started is reused (its result is stored), shared (a
+        future computes its key already), read back (a file without a record) or submitted."""
+        from sweep.storage import point_key, read_point
+
+        pending = db.pending_job_points(self.con, job_id)
+        reused, submit, on_disk = [], {}, {}
+        for row in pending:
+            params = points[row["idx"]]
+            # The key was computed when the job was submitted; it is recomputed here only to
+            # follow a change of the key's definition between versions (a stored job of an
+            # older server).
+            key = point_key(params)
+            if key != row["key"]:
+                db.set_job_point_key(self.con, job_id, row["idx"], key)
+            if key in self.futures or key in submit or key in on_disk:
+                continue  # already computing for another job (or listed twice)
+            stored = self._stored(key)
+            if stored is not None:
+                reused.append((stored["status"], stored["message"], job_id, key))
+                continue
+            found = read_point(self.settings.points_dir, key)
+            if found is not None:  # a file written just before a crash (no record yet)
+                on_disk[key] = (params, {**found, "computed": False})
+            else:
+                submit[key] = params
+        if reused:
+            db.mark_reused(self.con, reused)
+        if on_disk:
+            self._ensure_point_rows({k: p for k, (p, _) in on_disk.items()})
+            self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
+        self._submit(job_id, seq, submit)
+        n_reused = len(reused) + len(on_disk)
+        log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
+                 job_id, len(points), n_reused, len(submit), len(pending) - n_reused - len(submit))
 
     def _stored(self, key: str):
         """The points row of ``key`` if its result is final and its file is still on disk."""
-        from sweep.store import failed_path, point_path
+        from sweep.storage import failed_path, point_path
 
         row = db.point_row(self.con, key)
-        if row is None or row["status"] not in ("ok", "failed"):
+        if row is None or row["status"] not in POINT_RESULTS:
             return None
         path = (point_path if row["status"] == "ok" else failed_path)(self.settings.points_dir, key)
         return row if path.exists() else None
 
-    def _submit(self, job_id: str, seq: int, submit: dict[str, dict]) -> None:
+    def _submit(self, job_id: str, seq: int, submit: dict) -> None:
+        """Submit ``{key: RunParams}`` to the cluster for ``job_id``."""
         if not submit:
             return
-        from sweep.store import compute_point
+        from sweep.worker import compute_point
 
         self._ensure_point_rows(submit, submitted=True)
         for key, params in submit.items():
             self.futures[key] = self.client.submit(
-                compute_point, params, pure=False, retries=self.settings.retries,
+                compute_point, params, key, pure=False, retries=self.settings.retries,
                 priority=-int(seq), key=f"airpuff-point-{key}-{uuid.uuid4().hex[:8]}")
             self.trigger[key] = job_id
             self.params[key] = params
 
-    def _ensure_point_rows(self, params_by_key: dict[str, dict], submitted: bool = False) -> None:
-        """A ``points`` row (status pending) for each key; ``submitted`` counts a submission."""
-        with db.write(self.con):
-            self.con.executemany(
-                "INSERT INTO points (key, params_json, status, submissions) "
-                "VALUES (?, ?, 'pending', ?) ON CONFLICT (key) DO UPDATE SET "
-                "status = 'pending', submissions = submissions + ?",
-                [(k, json.dumps(p, sort_keys=True), int(submitted), int(submitted))
-                 for k, p in params_by_key.items()])
+    def _ensure_point_rows(self, params_by_key: dict, submitted: bool = False) -> None:
+        """A ``points`` row (status pending) for each ``{key: RunParams}``; ``submitted`` counts
+        a submission."""
+        db.upsert_pending_points(
+            self.con, {k: json.dumps(p.to_dict(), sort_keys=True) for k, p in params_by_key.items()},
+            submitted)
 
     def _collect(self) -> None:
-        from sweep.store import failure_from_exception, save_point
+        """Finished futures: store each point's file and record its result."""
+        from sweep.storage import save_point
+        from sweep.worker import failure_from_exception
 
         done = [(k, f) for k, f in self.futures.items() if f.done()]
         if not done:
@@ -342,21 +335,16 @@ class Runner:
             if fut.status == "finished":
                 rec = self._save(save_point, key, fut)
             elif fut.status == "cancelled":  # lost with the scheduler, or cancelled by us
-                if key in self._needed_keys() and self.lost.get(key, 0) < MAX_LOST_RESUBMITS:
+                if (key in db.needed_point_keys(self.con)
+                        and self.lost.get(key, 0) < MAX_LOST_RESUBMITS):
                     self.lost[key] = self.lost.get(key, 0) + 1
-                    seq = self.con.execute("SELECT seq FROM jobs WHERE id = ?",
-                                           (job_id,)).fetchone()
-                    self._submit(job_id, seq[0] if seq else 0, {key: params})
+                    self._submit(job_id, db.job_seq(self.con, job_id), {key: params})
                     continue
-                from airpuff_core.params import RunParams
-
-                rec = failure_from_exception(self.settings.points_dir, RunParams.from_dict(params),
-                                             RuntimeError("the task was lost repeatedly"))
+                rec = failure_from_exception(self.settings.points_dir, params,
+                                             RuntimeError("the task was lost repeatedly"), key)
             else:  # the task itself raised (e.g. KilledWorker: it crashed workers repeatedly)
-                from airpuff_core.params import RunParams
-
-                rec = failure_from_exception(self.settings.points_dir, RunParams.from_dict(params),
-                                             fut.exception())
+                rec = failure_from_exception(self.settings.points_dir, params, fut.exception(),
+                                             key)
             fut.release()
             records.append((key, job_id, rec))
         if records:
@@ -380,41 +368,21 @@ class Runner:
                     "computed": True}
 
     def _record(self, records) -> None:
-        now = db.now()
-        with db.write(self.con):
-            for key, job_id, rec in records:
-                computed = bool(rec.get("computed", True))
-                self.con.execute(
-                    "UPDATE points SET status = ?, message = ?, metrics_json = ?, wall_s = ?, "
-                    "computed_by = CASE WHEN ? THEN ? ELSE computed_by END, finished_at = ? "
-                    "WHERE key = ?",
-                    (rec["status"], rec.get("message") or None,
-                     json.dumps(rec.get("metrics") or {}), rec.get("wall_s"),
-                     computed, job_id, now, key))
-                self.con.execute(
-                    "UPDATE job_points SET status = ?, message = ?, "
-                    "reused = CASE WHEN job_id = ? AND ? THEN 0 ELSE 1 END "
-                    "WHERE key = ? AND status = 'pending' AND job_id IN "
-                    "(SELECT id FROM jobs WHERE status = 'running')",
-                    (rec["status"], rec.get("message") or None, job_id, computed, key))
+        db.record_point_results(self.con, records)
 
     def _finish_jobs(self) -> None:
+        """running -> done | failed, once no point of the job is pending."""
+        from sweep.combine import write_sweep
         from sweep.grid import SweepSpec
-        from sweep.store import write_sweep
 
-        ready = self.con.execute(
-            "SELECT id, spec_json, n_points FROM jobs j WHERE status = 'running' AND NOT EXISTS "
-            "(SELECT 1 FROM job_points p WHERE p.job_id = j.id AND p.status = 'pending') "
-            "ORDER BY seq").fetchall()
-        for job in ready:
+        for job in db.running_jobs_without_pending_points(self.con):
             job_id = job["id"]
-            counts = dict(self.con.execute(
-                "SELECT status, COUNT(*) FROM job_points WHERE job_id = ? GROUP BY status",
-                (job_id,)).fetchall())
+            counts = db.job_point_counts(self.con, job_id)
             try:
                 spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
                 t0 = time.perf_counter()
-                write_sweep(spec, self.settings.points_dir, self.settings.job_dataset(job_id))
+                write_sweep(spec, self.settings.points_dir, self.settings.job_dataset(job_id),
+                            db.job_point_keys(self.con, job_id))
                 log.info("job %s combined in %.2f s", job_id, time.perf_counter() - t0)
             except Exception as err:  # noqa: BLE001
                 log.exception("combining job %s", job_id)
@@ -422,17 +390,12 @@ class Runner:
                                                 f"{type(err).__name__}: {err}")
                 continue
             if counts.get("ok", 0) == 0:
-                first = self.con.execute("SELECT message FROM job_points WHERE job_id = ? AND "
-                                         "status = 'failed' ORDER BY idx LIMIT 1",
-                                         (job_id,)).fetchone()
+                first = db.first_failure_message(self.con, job_id)
                 self._end_job(job_id, "failed", f"all {job['n_points']} points failed; first: "
-                                                f"{first[0] if first else 'unknown'}")
+                                                f"{first or 'unknown'}")
             else:
                 self._end_job(job_id, "done", None)
 
     def _end_job(self, job_id: str, status: str, error: str | None) -> None:
-        with db.write(self.con):
-            self.con.execute("UPDATE jobs SET status = ?, error = ?, finished_at = ? "
-                             "WHERE id = ? AND status = 'running'",
-                             (status, error, db.now(), job_id))
+        db.end_job(self.con, job_id, status, error)
         log.info("job %s %s%s", job_id, status, f": {error}" if error else "")

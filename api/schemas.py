@@ -23,9 +23,10 @@ from airpuff_core.params import (
     ParamSpec,
 )
 from airpuff_core.result import METRICS
+from sweep.identification import DEFAULT_SIGMA, MEASURABLE, UNITS
 
-JobStatusName = Literal["queued", "running", "done", "failed", "cancelled"]
-PointStatusName = Literal["pending", "ok", "failed", "cancelled"]
+from .status import JOB_STATUSES, POINT_STATUSES, JobStatusName, PointStatusName
+
 
 
 def _bounds(spec: ParamSpec) -> dict[str, float]:
@@ -101,7 +102,7 @@ class Submitted(BaseModel):
 
 class JobInfo(BaseModel):
     id: str = Field(description="job id")
-    status: JobStatusName = Field(description="queued, running, done, failed or cancelled")
+    status: JobStatusName = Field(description=", ".join(JOB_STATUSES))
     points_total: int = Field(description="number of grid points")
     points_done: int = Field(description="points finished successfully (including reused ones)")
     points_failed: int = Field(description="points whose simulation failed")
@@ -127,7 +128,7 @@ def _point_record_model() -> type[BaseModel]:
     for name in SWEPT:
         s = PARAMETERS[name]
         fields[name] = (float, Field(description=f"{s.description} [{_unit_text(s)}]"))
-    fields["status"] = (PointStatusName, Field(description="pending, ok, failed or cancelled"))
+    fields["status"] = (PointStatusName, Field(description=", ".join(POINT_STATUSES)))
     fields["message"] = (Optional[str], Field(description="reason of a failure, else null"))
     fields["reused"] = (bool, Field(description="true if the result was computed earlier "
                                                 "(by this or another job) and reused"))
@@ -180,25 +181,22 @@ def units() -> dict[str, str]:
 
 # -- POST /identify -------------------------------------------------------------------------------
 
-MEASURABLE_UNITS = {"P1": "mmHg", "P2": "mmHg", "DA": "mm", "t_A1": "ms", "t_A2": "ms"}
-
-
 class MeasuredValue(BaseModel):
     model_config = ConfigDict(extra="forbid")
     value: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1e6, le=1e6)] = Field(
-        description="measured value in the metric's unit (P1, P2 mmHg; DA mm; t_A1, t_A2 ms)")
+        description="measured value in the metric's unit (" + ", ".join(
+            f"{name} {UNITS[name]}" for name in MEASURABLE) + ")")
     sigma: Optional[Annotated[float, Strict(), Field(allow_inf_nan=False, gt=0, le=1e6)]] = Field(
-        default=None, description="1-sigma uncertainty in the same unit; default 0.5 mmHg "
-                                  "(P1, P2), 0.02 mm (DA), 0.1 ms (t_A1, t_A2)")
+        default=None, description="1-sigma uncertainty in the same unit; default " + ", ".join(
+            f"{DEFAULT_SIGMA[name]:g} {UNITS[name]} ({name})" for name in MEASURABLE))
 
 
-class Measurement(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    P1: Optional[MeasuredValue] = Field(default=None, description="first applanation pressure [mmHg]")
-    P2: Optional[MeasuredValue] = Field(default=None, description="second applanation pressure [mmHg]")
-    DA: Optional[MeasuredValue] = Field(default=None, description="deformation amplitude [mm]")
-    t_A1: Optional[MeasuredValue] = Field(default=None, description="first applanation time [ms]")
-    t_A2: Optional[MeasuredValue] = Field(default=None, description="second applanation time [ms]")
+# Any subset of the measurable quantities of sweep.identification, each optional.
+Measurement = create_model(
+    "Measurement", __config__=ConfigDict(extra="forbid"),
+    **{name: (Optional[MeasuredValue], Field(default=None,
+                                             description=f"{METRICS[name][1]} [{UNITS[name]}]"))
+       for name in MEASURABLE})
 
 
 class IdentifyRequest(BaseModel):
@@ -214,7 +212,8 @@ class IdentifyRequest(BaseModel):
                                   "between two grid values the metrics are interpolated linearly")
     pmax: Optional[_number(PARAMETERS["pmax"])] = Field(  # type: ignore[valid-type]
         default=None, description="peak jet pressure [kPa]; needed if the sweep has several")
-    measurement: Measurement = Field(description="any non-empty subset of P1, P2, DA, t_A1, t_A2")
+    measurement: Measurement = Field(  # type: ignore[valid-type]
+        description="any non-empty subset of " + ", ".join(MEASURABLE))
     refine: Annotated[bool, Strict()] = Field(
         default=False, description="must be false: refinement with solver runs is only offered "
                                    "by `airpuff identify --refine`")

@@ -51,7 +51,7 @@ t_import, c_import = time.clock_gettime(C), time.process_time()
 airpuff_core.simulate(airpuff_core.RunParams(t_end=0.05))
 t_run, c_run = time.clock_gettime(C), time.process_time()
 import json
-from sweep.cluster import jit_counts
+from sweep.numba_cache import jit_counts
 n = jit_counts()
 print(json.dumps({"t_main": t_main, "t_import": t_import, "t_run": t_run,
                   "c_main": c_main, "c_import": c_import, "c_run": c_run,

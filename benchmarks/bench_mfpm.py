@@ -18,9 +18,8 @@ import time
 
 import numpy as np
 
-from airpuff_core.fluid import Operators
+from airpuff_core.fluid import KAPPA, Operators
 from airpuff_core.geometry import build_chamber
-from airpuff_core.solver import KAPPA
 
 
 def interleaved(rounds, repeats, fns):

@@ -37,8 +37,8 @@ LEVELS = ("coarse", "paper", "fine")
 def spacing(params: RunParams) -> float:
     """Largest fluid node spacing h [mm] of the run's chamber (no simulation)."""
     si = params.si()
-    ch = build_chamber(params.geometry, params.layout, params.resolution, si["R"], si["r_post"],
-                       si["alpha0"])
+    ch = build_chamber(params.geometry, params.layout, params.resolution, si.R_m, si.r_post_m,
+                       si.alpha0_rad)
     return float(ch.h.max() * 1e3)
 
 

@@ -28,7 +28,7 @@ SLOPE_ORSSENGO_PYE = 0.0229  # MPa per mmHg
 def tangent_modulus(k: float, iop_mmhg: float, p: RunParams) -> tuple[float, float]:
     """(E_t [Pa], prestretch) of the equibiaxial membrane at IOP ``iop_mmhg``."""
     si = p.si()
-    E0, h, nu, R = si["E0"], si["h"], si["nu"], si["R"]
+    E0, h, nu, R = si.E0_Pa, si.thickness_m, si.nu, si.R_m
     Ebar = E0 * h / (1.0 - nu * nu)
     lam = prestretch(iop_mmhg * MMHG_PA, R, Ebar, nu, k)
     E = 0.5 * (lam * lam - 1.0)

@@ -1,4 +1,5 @@
-"""Sensitivity of P1, P2, CH, DA, t_A1, t_A2 to the choices the paper leaves open (SPEC section 8).
+"""Sensitivity of P1, P2, CH, DA, t_A1, t_A2 to the choices the paper leaves open
+(docs/reproduction.md section 4).
 
     python benchmarks/sensitivity.py --resolution coarse --out sens_coarse
     python benchmarks/sensitivity.py --resolution paper --out sens_paper \

@@ -3,11 +3,11 @@
     python examples/measure_worker_startup.py [--points 4] [--t-end 3]
 
 Each mode runs in a fresh process with a NUMBA_CACHE_DIR in a temporary folder, starts a LocalCluster of 2 worker processes (one thread each) and runs the same short
-coarse points through ``sweep.store.run_point``:
+coarse points through ``sweep.worker.run_point``:
 
 * cold: no warm-up -- every worker compiles the solver's kernels itself, both at once into the
   same empty cache (the situation the runner avoids);
-* warm: ``sweep.cluster.warm_numba_cache()`` in the client first (what ``run_sweep`` does), so the
+* warm: ``sweep.numba_cache.warm_numba_cache()`` in the client first (what ``run_sweep`` does), so the
   workers only load compiled code;
 * rewarm: as warm, with the cache that warm filled (a later sweep): the client only loads too.
 
@@ -32,9 +32,10 @@ def measure(mode: str, n_points: int, t_end: float) -> dict:
     """Runs in the child process; NUMBA_CACHE_DIR is already set to an empty folder."""
     from distributed import as_completed
 
-    from sweep.cluster import close_client, make_client, warm_numba_cache
+    from sweep.cluster import close_client, make_client
+    from sweep.numba_cache import warm_numba_cache
     from sweep.grid import SweepSpec
-    from sweep.store import run_point
+    from sweep.worker import run_point
 
     spec = SweepSpec(E0=[0.4 + 0.05 * i for i in range(n_points)],
                      options={"resolution": "coarse", "t_end": t_end}).validate()
@@ -46,7 +47,7 @@ def measure(mode: str, n_points: int, t_end: float) -> dict:
         t_cluster = time.perf_counter() - t0
         with tempfile.TemporaryDirectory(prefix="airpuff-startup-points-") as points_dir:
             t1 = time.perf_counter()
-            futures = [client.submit(run_point, p.to_dict(), points_dir, pure=False)
+            futures = [client.submit(run_point, p, points_dir, pure=False)
                        for p in spec.points()]
             records = [f.result() for f in as_completed(futures)]
             t_points = time.perf_counter() - t1

@@ -16,11 +16,17 @@ Python::
 
 One module, one job:
 
-* ``grid``    -- which runs: axes in user units, validation, C-ordered points
-* ``store``   -- where results live: one atomic netCDF per point (keyed by a parameter hash),
-                 failure records, and the combined ``sweep.nc`` (SPEC section 7)
-* ``cluster`` -- the Dask cluster and the shared Numba cache
-* ``runner``  -- the order of events: skip stored points, warm the cache, fan out, combine
-* ``report``  -- progress bar and summary table; ``plots`` -- figures of a sweep
-* ``cli``     -- ``airpuff sweep``; ``demo`` -- ``make demo``
+* ``grid``           -- which runs: axes in user units, validation, C-ordered points
+* ``storage``        -- where results live: point keys (a parameter hash), file names, atomic
+                        writes, point records (one netCDF or one failure record per point)
+* ``worker``         -- the task of one point on a Dask worker: simulate, JIT accounting, failures
+* ``combine``        -- the point files of a sweep combined into ``sweep.nc``
+* ``numba_cache``    -- the Numba cache the processes share: location, warm-up, compile counts
+* ``cluster``        -- the Dask cluster: start or join, check and warm its workers
+* ``runner``         -- the order of events: skip stored points, warm the cache, fan out, combine
+* ``report``         -- progress bar and summary table; ``plots`` -- figures of a sweep
+* ``identification`` -- the inverse problem: IOP and E0 from a measurement, on a stored sweep
+* ``demo``           -- ``make demo``
+
+The command line (``airpuff sweep``, ``airpuff identify``) lives in ``api.cli``.
 """

@@ -2,8 +2,8 @@
 
     python -m sweep.demo --out demo_out
 
-Writes ``OUT/sweep.nc`` (SPEC section 7) and ``OUT/metrics_vs_IOP.png`` (IOPg, CH and DA against
-IOP, one line per E0) and prints where they are.  Running it again reuses the stored points.
+Writes ``OUT/sweep.nc`` (layout: ``sweep.combine``; the per-point files: docs/model.md, section 7)
+and ``OUT/metrics_vs_IOP.png`` (IOPg, CH and DA against IOP, one line per E0) and prints where they are.  Running it again reuses the stored points.
 """
 
 from __future__ import annotations

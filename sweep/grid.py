@@ -2,7 +2,7 @@
 
 Everything here is in the user units of ``airpuff run`` (MPa, mmHg, mm, kPa; see
 ``airpuff_core.params.PARAMETERS``).  This module only describes *which* runs a sweep consists of;
-running them is ``sweep.runner``'s job and storing them ``sweep.store``'s.
+running them is ``sweep.runner``'s job and storing them ``sweep.storage``'s.
 
 Interface used by the HTTP API (issue 5) -- keep these names:
 
@@ -128,7 +128,14 @@ class SweepSpec:
 
     # -- validation ----------------------------------------------------------------------------
     def validate(self) -> "SweepSpec":
-        """Check the whole sweep before anything is submitted; returns ``self``.
+        """Check the whole sweep before anything is submitted (:meth:`validated_points`); returns
+        ``self``."""
+        self.validated_points()
+        return self
+
+    def validated_points(self) -> list[RunParams]:
+        """Check the whole sweep and return its points (as :meth:`points`), each built -- and so
+        validated -- once.
 
         Every axis must hold at least one number within its parameter's range and no
         duplicates; ``options`` must name known, non-swept parameters with valid values; and
@@ -160,9 +167,8 @@ class SweepSpec:
         # its normalised values (floats, not the strings a command line gives) are kept.
         base = RunParams.from_dict(dict(self.options))
         self.options = {k: getattr(base, k) for k in self.options}
-        for p in self.points():  # cheap (microseconds per point) and catches cross-field limits
-            p.validate()
-        return self
+        # Building a RunParams validates it, cross-field limits included (microseconds a point).
+        return self.points()
 
     # -- the runs ------------------------------------------------------------------------------
     def points(self) -> list[RunParams]:

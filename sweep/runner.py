@@ -11,7 +11,7 @@ The runner owns the order of events that makes a sweep cheap and restartable:
    future referenced (Dask cancels work nobody holds), and collect them with ``as_completed``;
 5. write ``DIR/sweep.nc`` from the point files (also when some points failed).
 
-A point that fails is recorded by ``run_point`` on the worker; a point whose task dies anyway (it
+A point that fails is recorded by ``sweep.worker.run_point`` on the worker; a point whose task dies anyway (it
 crashed its worker process three times: ``KilledWorker``) is recorded here.  A worker that dies for
 an outside reason is restarted by its Nanny and its task is re-run elsewhere; nothing is lost,
 because results live in files, not in the scheduler.
@@ -30,10 +30,12 @@ from typing import Callable
 
 from airpuff_core.params import RunParams
 
-from .cluster import check_workers, close_client, make_client, warm_numba_cache
+from .cluster import check_workers, close_client, make_client
+from .combine import write_sweep
 from .grid import SweepSpec
-from .store import (POINTS_SUBDIR, SWEEP_FILE, failure_from_exception, point_key, read_point,
-                    run_point, write_spec, write_sweep)
+from .numba_cache import warm_numba_cache
+from .storage import POINTS_SUBDIR, SWEEP_FILE, point_key, read_point, write_spec
+from .worker import failure_from_exception, run_point
 
 
 @dataclass
@@ -92,23 +94,22 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
     steady-state throughput, which then excludes the cluster's start-up.
     """
     t_start = time.perf_counter()
-    spec.validate()
+    points = spec.validated_points()
     out_dir = Path(out_dir)
     points_dir = Path(points_dir) if points_dir is not None else out_dir / POINTS_SUBDIR
     points_dir.mkdir(parents=True, exist_ok=True)
     write_spec(spec, out_dir)
 
-    points = spec.points()
+    keys = [point_key(p) for p in points]  # the one hash of each point; passed on from here
     records: dict[str, dict] = {}
-    todo = []
-    for p in points:
-        key = point_key(p)
+    todo: list[tuple[str, RunParams]] = []
+    for key, p in zip(keys, points):
         rec = read_point(points_dir, key)
         if rec is not None and (rec["status"] == "ok" or not retry_failed):
             rec["computed"] = False
             records[key] = rec
         else:
-            todo.append(p)
+            todo.append((key, p))
 
     counts = {"total": len(points), "done": len(records), "computed": 0, "reused": len(records),
               "failed": sum(r["status"] == "failed" for r in records.values()), "elapsed_s": 0.0,
@@ -121,7 +122,7 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
     if todo:
         # the sweep's options at the default E0, IOP, thickness and pmax: an ordinary point that
         # runs through every kernel (the first missing point might fail at once, e.g. a 10 um cornea)
-        warmup_s = warm_numba_cache(RunParams.from_dict(spec.options), fallback=todo[0])
+        warmup_s = warm_numba_cache(RunParams.from_dict(spec.options), fallback=todo[0][1])
         own_client = client is None
         if own_client:
             client = make_client(workers=workers, scheduler=scheduler)
@@ -134,8 +135,8 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
             from distributed import as_completed
 
             for fut in as_completed(list(futures)):
-                params = futures.pop(fut)
-                rec = _collect(fut, params, points_dir)
+                key, params = futures.pop(fut)
+                rec = _collect(fut, key, params, points_dir)
                 records[rec["key"]] = rec
                 counts["done"] += 1
                 # normally computed; read back if another task stored it first (a re-run after
@@ -149,8 +150,8 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
             if own_client:
                 close_client(client)
 
-    path = write_sweep(spec, points_dir, out_dir / SWEEP_FILE)
-    ordered = [records.get(point_key(p)) for p in points]
+    path = write_sweep(spec, points_dir, out_dir / SWEEP_FILE, keys)
+    ordered = [records.get(key) for key in keys]
     return SweepOutcome(
         n_points=len(points), computed=counts["computed"], reused=counts["reused"],
         failed=sum(r is not None and r["status"] == "failed" for r in ordered), path=path,
@@ -159,27 +160,28 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
 
 
 def _submit(client, todo, points_dir: Path, retry_failed: bool) -> dict:
-    """Submit one task per missing point; returns future -> RunParams (keeps the futures alive)."""
+    """Submit one task per missing ``(key, RunParams)``; returns future -> (key, RunParams) (keeps
+    the futures alive)."""
     futures = {}
     batch = uuid.uuid4().hex[:8]  # task keys must be unique per submission (pure=False)
-    for p in todo:
-        fut = client.submit(run_point, p.to_dict(), str(points_dir), retry_failed,
-                            key=f"airpuff-point-{point_key(p)}-{batch}", pure=False, retries=2)
-        futures[fut] = p
+    for key, p in todo:
+        fut = client.submit(run_point, p, str(points_dir), retry_failed, key,
+                            key=f"airpuff-point-{key}-{batch}", pure=False, retries=2)
+        futures[fut] = (key, p)
     return futures
 
 
-def _collect(fut, params, points_dir: Path) -> dict:
+def _collect(fut, key: str, params: RunParams, points_dir: Path) -> dict:
     """The record of a finished task.  ``run_point`` catches the solver's failures itself; an
     exception here means the task could not run at all (e.g. ``KilledWorker`` after the point
     crashed three worker processes), which is recorded as that point's failure."""
     try:
         return fut.result()
     except concurrent.futures.CancelledError:  # cancelled from outside (client restart): not the point's fault
-        return {"key": point_key(params), "status": "failed", "computed": True,
+        return {"key": key, "status": "failed", "computed": True,
                 "message": "task cancelled; re-run the sweep to compute this point",
                 "metrics": {}, "wall_s": None, "params": params.to_dict()}
     except Exception as err:  # noqa: BLE001
-        return failure_from_exception(points_dir, params, err)
+        return failure_from_exception(points_dir, params, err, key)
     finally:
         fut.release()

@@ -16,7 +16,7 @@ import xarray as xr
 
 from airpuff_core.params import RunParams
 from airpuff_core.result import METRICS
-from sweep.store import failed_path, point_key, point_path
+from sweep.storage import failed_path, point_key, point_path
 try:  # tests/ may or may not be a package
     from .test_api_support import ServerProcess, wait_job
 except ImportError:

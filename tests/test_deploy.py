@@ -366,7 +366,7 @@ def test_compose_and_dockerfile_wiring():
 
 def test_save_point_refuses_a_result_without_a_netcdf_file(tmp_path):
     """The API stores what came back through Dask only if it is a netCDF file."""
-    from sweep.store import failed_path, point_path, save_point
+    from sweep.storage import failed_path, point_path, save_point
 
     with pytest.raises(ValueError, match="carries no netCDF file"):
         save_point(tmp_path, "k1", {"key": "k1", "status": "ok"}, b"<html>")
@@ -383,7 +383,8 @@ def test_a_point_file_whose_record_was_lost_is_read_back_not_recomputed(tmp_path
     """The API writes a point file, then its record; a crash in between leaves a file without a
     record.  The next runner takes the file as the point's result instead of recomputing it."""
     from airpuff_core.params import RunParams
-    from sweep.store import compute_point, point_key, point_path, save_point
+    from sweep.storage import point_key, point_path, save_point
+    from sweep.worker import compute_point
 
     body = {"E0": [0.5], "IOP": [12.0, 18.0], "thickness": [0.5], "pmax": [10.0],
             "resolution": "coarse", "t_end": 1.0}
@@ -402,7 +403,7 @@ def test_a_point_file_whose_record_was_lost_is_read_back_not_recomputed(tmp_path
         options = {k: v for k, v in body.items() if k not in ("E0", "IOP", "thickness", "pmax")}
         params = RunParams.from_dict({**options, "E0": 0.5, "IOP": 12.0, "thickness": 0.5,
                                       "pmax": 10.0})
-        rec, netcdf = compute_point(params.to_dict())
+        rec, netcdf = compute_point(params)
         assert rec["status"] == "ok" and netcdf[:4] == b"\x89HDF", rec["message"]
         key = point_key(params)
         save_point(data / "points", key, rec, netcdf)

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from airpuff_core import RunParams
-from airpuff_core.kernels.fluid import AXIS, CORNEA, INTERIOR, WALL
+from airpuff_core.coupling import CoupledModel
+from airpuff_core.fluid import KAPPA
 from airpuff_core.kernels.mfpm import brookshaw_laplacian
-from airpuff_core.solver import KAPPA, CoupledModel
+from airpuff_core.kernels.nodes import AXIS, CORNEA, INTERIOR, WALL
 
 
 @pytest.fixture(scope="module")

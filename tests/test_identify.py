@@ -21,7 +21,7 @@ import shutil
 import pytest
 
 from sweep.grid import SweepSpec
-from sweep.identify import (MEASURABLE, IdentifyError, SweepTable, identify, refine,
+from sweep.identification import (MEASURABLE, IdentifyError, SweepTable, identify, refine,
                             solver_metrics)
 from sweep.runner import run_sweep
 

@@ -1,4 +1,4 @@
-"""Quasi-static applanation (Imbert-Fick, SPEC section 9): with a slow jet the applanation pressures
+"""Quasi-static applanation (Imbert-Fick, docs/model.md section 8): with a slow jet the applanation pressures
 equal the fluid pressure at the apex within 0.1 mmHg."""
 
 import math

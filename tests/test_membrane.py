@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from airpuff_core import RunParams
+from airpuff_core.coupling import CoupledModel
 from airpuff_core.kernels.membrane import fung_resultants, internal_forces
 from airpuff_core.membrane import (apex_curvature, apex_fit_nodes, build_membrane,
                                    equibiaxial_tension, prestretch)
-from airpuff_core.solver import CoupledModel
 
 EBAR, NU = 333.0, 0.5
 

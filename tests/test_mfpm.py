@@ -1,6 +1,6 @@
 """MFPM operator: exact derivatives of linear and quadratic fields on perturbed clouds (interior,
 walls, axis, corners, cornea), second-order convergence on a smooth field, and the conditioning
-guard (SPEC section 9)."""
+guard (docs/model.md section 4)."""
 
 import math
 
@@ -9,11 +9,10 @@ import pytest
 import xarray as xr
 
 from airpuff_core.errors import SimulationError
-from airpuff_core.fluid import Operators
+from airpuff_core.fluid import KAPPA, Operators
 from airpuff_core.geometry import build_chamber
-from airpuff_core.kernels.fluid import AXIS, CORNEA, WALL
 from airpuff_core.kernels.mfpm import brookshaw_laplacian, spd_inverse5
-from airpuff_core.solver import KAPPA
+from airpuff_core.kernels.nodes import AXIS, CORNEA, WALL
 
 R, RP, A0 = 7e-3, 2.04e-3, math.radians(60)
 

@@ -1,5 +1,5 @@
 """With pmax = 0 the prestressed cornea and the fluid stay at rest for the whole run, at coarse and
-paper resolution, with no balancing force (SPEC section 9)."""
+paper resolution, with no balancing force (docs/model.md section 3)."""
 
 import numpy as np
 import pytest

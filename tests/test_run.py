@@ -1,5 +1,5 @@
 """One coarse run through the real CLI: metrics against their definitions, the netCDF contract of
-SPEC section 7, conservation, coupling tolerance, and the CLI's handling of bad input."""
+docs/model.md section 7, conservation, coupling tolerance, and the CLI's handling of bad input."""
 
 import json
 import math
@@ -79,7 +79,7 @@ def test_conservation(coarse_run):
 
 def test_apex_balance_at_applanation(coarse_run):
     """At an applanation the membrane term vanishes, so the apex balance reads
-    P = p_fluid + rho_c h a_inward (Imbert-Fick plus the apex's inertia, SPEC section 10).
+    P = p_fluid + rho_c h a_inward (Imbert-Fick plus the apex's inertia, docs/reproduction.md section 5).
     The acceleration is taken from the stored velocity history, independently of the solver."""
     m, path = coarse_run
     ds = open_dataset(path)

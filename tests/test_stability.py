@@ -1,5 +1,5 @@
 """No growing eigenmode of the linearised coupled operator (fluid + cornea) about rest at coarse
-resolution, with a margin of two in the hyperviscosity; without it, modes grow (SPEC section 4)."""
+resolution, with a margin of two in the hyperviscosity; without it, modes grow (docs/model.md section 4)."""
 
 import pytest
 

@@ -16,7 +16,7 @@ import time
 import xarray as xr
 
 from sweep.grid import SweepSpec
-from sweep.store import point_key, point_path
+from sweep.storage import point_key, point_path
 
 ARGS = ["--E0", "0.4,0.6", "--IOP", "12:20:3", "--resolution", "coarse", "--t-end", "3",
         "--workers", "2"]

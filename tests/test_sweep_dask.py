@@ -27,10 +27,11 @@ from airpuff_core import simulate
 from airpuff_core.dataset import open_dataset
 from airpuff_core.params import SWEPT
 from airpuff_core.result import METRICS
-from sweep.cluster import close_client, jit_counts, make_client, shared_numba_cache_dir
+from sweep.cluster import close_client, make_client
+from sweep.numba_cache import jit_counts, shared_numba_cache_dir
 from sweep.grid import SweepSpec
 from sweep.runner import run_sweep
-from sweep.store import failed_path, point_key, point_path
+from sweep.storage import failed_path, point_key, point_path
 
 SHORT = {"resolution": "coarse", "t_end": 3.0}  # ms
 

@@ -12,7 +12,7 @@ import pytest
 from airpuff_core.params import ParameterError, RunParams
 from api.cli import main as airpuff_main
 from sweep.grid import SweepSpec, parse_axis
-from sweep.store import point_key
+from sweep.storage import point_key
 
 
 # -- parse_axis -----------------------------------------------------------------------------------

@@ -6,19 +6,13 @@
     p = p0 + rho0 c^2 / gamma [ (rho/rho0)^gamma - 1 ]
 
 On the axis (x = 0) the 1/x terms take their limits: vx/x -> dvx/dx, f_x/x -> f_xx, and vx = 0.
-Node kinds: INTERIOR, AXIS (interior node on the axis), WALL (rigid, no-slip), CORNEA (moves with
-the membrane).  Only INTERIOR and AXIS nodes integrate the momentum equation.
+Only INTERIOR and AXIS nodes (``nodes.py``) integrate the momentum equation.
 """
 
 import numpy as np
 from numba import njit
 
-from .neighbours import AXIS_EPS
-
-INTERIOR = 0
-AXIS = 1
-WALL = 2
-CORNEA = 3
+from .nodes import AXIS, AXIS_EPS, INTERIOR
 
 
 @njit(cache=True)

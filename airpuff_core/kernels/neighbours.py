@@ -9,13 +9,39 @@ interior line for the MFPM operators instead of a one-sided boundary.
 Output is a flat table: node i's neighbours are p = start[i] ... start[i + 1] - 1, with
 ``nbr[p]`` (neighbour index) and ``mirrored[p]`` (1 for an image), at most ``max_neighbours`` per
 node.  The search is O(n) (counting sort into square cells of side
-kappa * max h).
+kappa * max h).  The same cell sort serves ``nearest_node_sums``, which gives each node the area
+and volume of the part of the chamber nearest to it.
 """
 
 import numpy as np
 from numba import njit
 
-AXIS_EPS = 1e-12  # m: a node with x below this lies on the axis (its image is itself)
+from .nodes import AXIS_EPS
+
+
+@njit(cache=True)
+def sort_into_cells(x, y, xmin, ymin, cell, ncx, ncy):
+    """Counting sort of the nodes into square cells of side ``cell`` [m] on an ncx x ncy grid
+    whose corner is (xmin, ymin); cell c = cx * ncy + cy.  Returns (cell_start, order): the nodes
+    of cell c are order[cell_start[c]] ... order[cell_start[c + 1] - 1], in increasing index."""
+    n = x.shape[0]
+    cell_start = np.zeros(ncx * ncy + 1, dtype=np.int64)
+    cell_of = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        cx = min(int((x[i] - xmin) / cell), ncx - 1)
+        cy = min(int((y[i] - ymin) / cell), ncy - 1)
+        c = cx * ncy + cy
+        cell_of[i] = c
+        cell_start[c + 1] += 1
+    for c in range(ncx * ncy):
+        cell_start[c + 1] += cell_start[c]
+    fill = cell_start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        c = cell_of[i]
+        order[fill[c]] = i
+        fill[c] += 1
+    return cell_start, order
 
 
 @njit(cache=True)
@@ -40,23 +66,7 @@ def build_neighbours(x, y, h, kappa, max_neighbours, start, nbr, mirrored):
     cell = kappa * hmax
     ncx = int((xmax - xmin) / cell) + 1
     ncy = int((ymax - ymin) / cell) + 1
-    # counting sort of the nodes into cells
-    cell_start = np.zeros(ncx * ncy + 1, dtype=np.int64)
-    cell_of = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        cx = min(int((x[i] - xmin) / cell), ncx - 1)
-        cy = min(int((y[i] - ymin) / cell), ncy - 1)
-        c = cx * ncy + cy
-        cell_of[i] = c
-        cell_start[c + 1] += 1
-    for c in range(ncx * ncy):
-        cell_start[c + 1] += cell_start[c]
-    fill = cell_start[:-1].copy()
-    order = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        c = cell_of[i]
-        order[fill[c]] = i
-        fill[c] += 1
+    cell_start, order = sort_into_cells(x, y, xmin, ymin, cell, ncx, ncy)
 
     status = 0
     p0 = 0
@@ -110,3 +120,34 @@ def max_squared_move(x, y, x_ref, y_ref):
                 return np.nan
             m = d2
     return m
+
+
+@njit(cache=True)
+def nearest_node_sums(x, y, sx, sy, cell, area_out, vol_out, dA):
+    """Assign each sample point (sx, sy) [m] to its nearest node and
+    add dA [m^2] to that node's ``area_out`` and 2 pi sx dA [m^3] to its ``vol_out``.
+
+    ``cell`` [m] must be at least the largest distance from a sample to its nearest node (the
+    search looks two cells around the sample's cell)."""
+    xmin = x.min() - cell
+    ymin = y.min() - cell
+    ncx = int((x.max() - xmin) / cell) + 2
+    ncy = int((y.max() - ymin) / cell) + 2
+    start, order = sort_into_cells(x, y, xmin, ymin, cell, ncx, ncy)
+    for s in range(sx.shape[0]):
+        cx = int((sx[s] - xmin) / cell)
+        cy = int((sy[s] - ymin) / cell)
+        best = -1
+        bd = 1e300
+        for ix in range(max(cx - 2, 0), min(cx + 3, ncx)):
+            for iy in range(max(cy - 2, 0), min(cy + 3, ncy)):
+                c = ix * ncy + iy
+                for t in range(start[c], start[c + 1]):
+                    j = order[t]
+                    d = (x[j] - sx[s]) ** 2 + (y[j] - sy[s]) ** 2
+                    if d < bd:
+                        bd = d
+                        best = j
+        if best >= 0:
+            area_out[best] += dA
+            vol_out[best] += 2.0 * np.pi * sx[s] * dA

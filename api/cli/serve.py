@@ -17,9 +17,9 @@ import socket
 import sys
 from pathlib import Path
 
-from airpuff_core.cli import fail
+from api.settings import DEFAULT_MAX_POINTS, TOKEN_ENV, Settings
 
-from .settings import DEFAULT_MAX_POINTS, TOKEN_ENV, Settings
+from .common import fail
 
 PROG = "airpuff serve"
 
@@ -118,7 +118,7 @@ def serve_command(args: argparse.Namespace) -> int:
         logging.getLogger("distributed").setLevel(logging.WARNING)
     lock = None
     if settings.run_jobs:
-        from .runner import RunnerLocked, acquire_runner_lock
+        from api.runner import RunnerLocked, acquire_runner_lock
 
         try:
             lock = acquire_runner_lock(settings.data_dir)
@@ -144,7 +144,7 @@ def serve_command(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from .app import create_app
+    from api.app import create_app
 
     app = create_app(settings)
     host_text = f"[{args.host}]" if ":" in args.host else args.host
@@ -164,8 +164,3 @@ def serve_command(args: argparse.Namespace) -> int:
             lock.close()
     return 0 if server.started else 1
 
-
-if __name__ == "__main__":  # python -m api.serve ... (same as `airpuff serve ...`)
-    from .cli import main
-
-    sys.exit(main(["serve", *sys.argv[1:]]))

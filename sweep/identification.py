@@ -37,11 +37,16 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-MEASURABLE = ("P1", "P2", "DA", "t_A1", "t_A2")
-UNITS = {"P1": "mmHg", "P2": "mmHg", "DA": "mm", "t_A1": "ms", "t_A2": "ms",
-         "IOP": "mmHg", "E0": "MPa", "thickness": "mm", "pmax": "kPa"}
-# Default standard uncertainties of a measurement (1 sigma), in the units above.
+from airpuff_core.params import PARAMETERS
+from airpuff_core.result import METRICS
+
+# The measurable quantities (the one list: the command line and the HTTP API take theirs from
+# here) with the default standard uncertainty (1 sigma) of a measurement, in the metric's unit.
 DEFAULT_SIGMA = {"P1": 0.5, "P2": 0.5, "DA": 0.02, "t_A1": 0.1, "t_A2": 0.1}
+MEASURABLE = tuple(DEFAULT_SIGMA)
+# Units of the measured quantities and of the estimated and given parameters (user units).
+UNITS = {**{name: METRICS[name][0] for name in MEASURABLE},
+         **{name: PARAMETERS[name].unit for name in ("IOP", "E0", "thickness", "pmax")}}
 
 DELTA_CHI2_68 = 2.30  # 68.3 % joint region of 2 parameters
 # 99 % quantiles of chi^2 with k = 1..5 degrees of freedom (no scipy in the project)

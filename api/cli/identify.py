@@ -1,7 +1,8 @@
 """``airpuff identify``: estimate IOP and E0 from a measurement, using a stored sweep.nc.
 
 Measured values are given as ``--P1 VALUE`` or ``--P1 VALUE+-SIGMA`` (one token, e.g.
-``--DA 1.05+-0.03``); without a sigma the default uncertainty of ``sweep.identify.DEFAULT_SIGMA``
+``--DA 1.05+-0.03``); without a sigma the default uncertainty of
+``sweep.identification.DEFAULT_SIGMA``
 is used.  Bad input and measurements outside the sweep exit with code 2 and one line.
 """
 
@@ -11,7 +12,8 @@ import json
 import re
 import sys
 
-from .identify import DEFAULT_SIGMA, MEASURABLE, UNITS, IdentifyError, SweepTable, identify, refine
+from sweep.identification import (DEFAULT_SIGMA, MEASURABLE, UNITS, IdentifyError, SweepTable,
+                                  identify, refine)
 
 _VALUE_RE = re.compile(r"^\s*([^+±]+?)\s*(?:(?:\+-|\+/-|±)\s*(\S+))?\s*$")
 
@@ -41,7 +43,7 @@ def _number(name: str, text):
 
 
 def add_identify_parser(sub) -> None:
-    """Register ``identify`` on the ``airpuff`` parser (called by ``api/cli.py``)."""
+    """Register ``identify`` on the ``airpuff`` parser."""
     p = sub.add_parser("identify", help="estimate IOP and E0 from a measurement using a sweep",
                        description=(
         "Estimate the true IOP and the corneal stiffness E0 from measured P1, P2 [mmHg], DA [mm], "

@@ -15,20 +15,19 @@ sweep.nc); 2 bad input (one line on stderr naming the parameter and accepted ran
 from __future__ import annotations
 
 import json
-import re
 import sys
 
-from airpuff_core.cli import RUN_OPTIONS, add_run_options, fail
 from airpuff_core.params import CHOICES, PARAMETERS, SWEPT, ParameterError
+from sweep.grid import AXIS_SYNTAX
 
-from .grid import AXIS_SYNTAX
+from .common import RUN_OPTIONS, add_run_options, escape_percent, fail
 
 PROG = "airpuff sweep"
 DEFAULT_OUT = "sweep_out"
 
 
 def add_sweep_parser(sub) -> None:
-    """Register the ``sweep`` sub-command on the ``airpuff`` parser (called by ``api/cli.py``)."""
+    """Register the ``sweep`` sub-command on the ``airpuff`` parser."""
     p = sub.add_parser("sweep", help="run a parameter sweep on Dask", description=(
         "Run a grid over E0 x IOP x thickness x pmax on a Dask cluster; each point is stored as "
         "its own netCDF file, and all are combined into OUT/sweep.nc. Re-running the same sweep "
@@ -39,7 +38,7 @@ def add_sweep_parser(sub) -> None:
                        help=f"{s.description} [{s.unit}]: {AXIS_SYNTAX}; each value "
                             f"{s.accepted()}; default {s.default:g}")
     add_run_options(p, swept=False)
-    _escape_percent(p)
+    escape_percent(p)
     p.add_argument("--workers", default="2", metavar="N",
                    help="number of local worker processes, one thread each (default 2)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -54,19 +53,9 @@ def add_sweep_parser(sub) -> None:
     p.set_defaults(func=sweep_command)
 
 
-def _escape_percent(parser) -> None:
-    """argparse %-formats help strings; a literal '%' in a shared option description (e.g.
-    "0.19 % jet") would make --help crash, so lone '%' signs are doubled ('%%' and '%(...)s'
-    are left alone)."""
-    for action in parser._actions:
-        if action.help:
-            action.help = re.sub(r"%%|%(?!\()", lambda m: "%%" if m.group() == "%" else m.group(),
-                                 action.help)
-
-
 def spec_from_args(args):
     """The SweepSpec of parsed arguments; raises ParameterError on any bad value."""
-    from .grid import SweepSpec, parse_axis
+    from sweep.grid import SweepSpec, parse_axis
 
     axes = {}
     for name in SWEPT:
@@ -92,8 +81,8 @@ def _workers(text) -> int:
 
 
 def sweep_command(args) -> int:
-    from .report import SweepProgress, summary_table
-    from .runner import run_sweep
+    from sweep.report import SweepProgress, summary_table
+    from sweep.runner import run_sweep
 
     try:
         spec = spec_from_args(args)
@@ -101,22 +90,21 @@ def sweep_command(args) -> int:
     except ParameterError as err:
         fail(PROG, err)
     progress = None if args.json else SweepProgress()
+    stopped = None  # (exit code, message) if the sweep did not finish
     try:
         outcome = run_sweep(spec, args.out, workers=workers, scheduler=args.scheduler,
                             progress=progress, retry_failed=args.retry_failed)
     except KeyboardInterrupt:
-        if progress:
-            progress.close()
-        sys.stderr.write(f"{PROG}: interrupted; finished points are stored in {args.out}; "
-                         "run the same command again to resume\n")
-        return 130
+        stopped = (130, f"interrupted; finished points are stored in {args.out}; "
+                        "run the same command again to resume")
     except (OSError, TimeoutError) as err:  # e.g. no scheduler at --scheduler, unwritable --out
+        stopped = (1, f"error: {' '.join(str(err).split())}")
+    finally:
         if progress:
-            progress.close()
-        sys.stderr.write(f"{PROG}: error: {' '.join(str(err).split())}\n")
-        return 1
-    if progress:
-        progress.close()
+            progress.close()  # before any message: the bar's line ends first
+    if stopped:
+        sys.stderr.write(f"{PROG}: {stopped[1]}\n")
+        return stopped[0]
     for w in outcome.warnings:
         sys.stderr.write(f"{PROG}: warning: {w}\n")
     if args.json:

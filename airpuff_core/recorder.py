@@ -1,0 +1,198 @@
+"""What a run keeps of its steps: time histories on the output grid, snapshots, solver figures.
+
+``Recorder`` watches a ``CoupledModel`` after every step and turns what it saw into the
+``RunResult`` (user units: ms, mm, mmHg, m/s; docs/model.md section 7):
+
+- the histories of ``result.HISTORIES`` on the grid 0, output_interval, ..., t_end, linearly
+  interpolated between solver steps (the air jet, analytic, is eq. (11) on the grid exactly);
+- the apex curvature and fluid pressure at every solver step, from which ``metrics.py`` finds the
+  applanations (sign changes of the curvature) by interpolation between steps;
+- the snapshots of ``result.SNAPSHOT_LABELS``: the initial state, the first step after each
+  applanation and after the jet peak, the state at the output time of the largest displacement,
+  and the end;
+- solver diagnostics: steps, dt, coupling iterations, sub-steps, and the largest mismatch
+  between the chamber volume bounded by the cornea and the volume implied by the density field
+  (both relative to t = 0).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .coupling import CoupledModel
+from .fluid import KAPPA
+from .kernels.membrane import air_jet
+from .metrics import compute_metrics
+from .params import MMHG_PA
+from .result import SNAPSHOT_LABELS, RunResult
+
+
+def probe(model: CoupledModel) -> dict[str, float]:
+    """The scalars of the time histories at the model's current state (user units)."""
+    return {
+        "apex_displacement": model.apex_displacement() * 1e3,
+        "apex_velocity": -model.VY[0],
+        "apex_curvature": model.apex_curvature() * 1e-3,
+        "jet_pressure_apex": model.jet_pressure_apex() / MMHG_PA,
+        "fluid_pressure_apex": model.p_interface[0] / MMHG_PA,
+        "chamber_volume": model.chamber_volume() * 1e9,
+        "coupling_iterations": float(model.last_iterations),
+        "sound_speed": model.c,
+    }
+
+
+def snapshot(model: CoupledModel) -> dict[str, np.ndarray]:
+    """The fields of a snapshot at the model's current state (user units)."""
+    return {
+        "cornea_x": model.X * 1e3, "cornea_y": model.Y * 1e3,
+        "fluid_x": model.x * 1e3, "fluid_y": model.y * 1e3,
+        "fluid_pressure": model.pressure() / MMHG_PA,
+        "fluid_vx": model.vx.copy(), "fluid_vy": model.vy.copy(),
+    }
+
+
+class Recorder:
+    """Histories, snapshots and diagnostics of one run; ``record_step`` after each step,
+    ``result`` at the end."""
+
+    def __init__(self, model: CoupledModel):
+        si = model.si
+        self.t_end = si.t_end_s
+        self.t_jet_peak = si.t0_s
+        dt_out = si.output_interval_s
+        n_out = int(math.floor(self.t_end / dt_out + 1e-9)) + 1
+        self.out_t = np.arange(n_out) * dt_out  # s
+        first = probe(model)
+        self.histories = {k: np.full(n_out, np.nan) for k in first}
+        for k, v in first.items():
+            self.histories[k][0] = v
+        self._next_out = 1
+        self._prev, self._t_prev = first, 0.0
+        # step-level series for the applanation detection and Imbert-Fick diagnostics
+        self.step_t = [0.0]  # ms
+        self.step_kappa = [first["apex_curvature"]]
+        self.step_fluid_p = [first["fluid_pressure_apex"]]
+        self.snapshots = {label: None for label in SNAPSHOT_LABELS}
+        self.snapshot_t = {label: math.nan for label in SNAPSHOT_LABELS}
+        self._take("initial", model)
+        self._best_da = -math.inf
+        self.iterations = []
+        self.dts = []
+        self.substeps = []
+        self.hv_substeps = []
+        self.viscous_limited_steps = 0  # steps whose dt the viscous limit set
+        self.max_residual = 0.0
+        self._volume0 = first["chamber_volume"]  # mm^3
+        self._density_volume0 = model.density_volume()
+        self.max_volume_mismatch = 0.0
+
+    def _take(self, label, model):
+        self.snapshots[label] = snapshot(model)
+        self.snapshot_t[label] = model.t * 1e3
+
+    def record_step(self, model: CoupledModel, dt: float):
+        """Take in the state after a step of dt [s]."""
+        self.iterations.append(model.last_iterations)
+        self.dts.append(dt)
+        self.substeps.append(model.last_substeps)
+        self.hv_substeps.append(model.last_hv_substeps)
+        self.viscous_limited_steps += model.dt_limits["viscous"] < model.dt_limits["acoustic"]
+        self.max_residual = max(self.max_residual, model.last_residual)
+        cur = probe(model)
+        t = model.t
+        self.step_t.append(t * 1e3)
+        self.step_kappa.append(cur["apex_curvature"])
+        self.step_fluid_p.append(cur["fluid_pressure_apex"])
+        self._take_event_snapshots(model)
+        self._interpolate_histories(model, cur)
+        volume0 = self._volume0
+        volume_mismatch = abs((cur["chamber_volume"] - volume0) * 1e-9
+                              - (model.density_volume() - self._density_volume0)) / (volume0 * 1e-9)
+        self.max_volume_mismatch = max(self.max_volume_mismatch, volume_mismatch)
+        self._prev, self._t_prev = cur, t
+
+    def _take_event_snapshots(self, model):
+        """Snapshots at the applanations (sign changes of the apex curvature) and the jet peak."""
+        kappa_before, kappa = self.step_kappa[-2], self.step_kappa[-1]
+        if kappa_before > 0 >= kappa and self.snapshots["first_applanation"] is None:
+            self._take("first_applanation", model)
+        if kappa_before < 0 <= kappa:
+            self._take("second_applanation", model)
+        if self.snapshots["jet_peak"] is None and model.t >= self.t_jet_peak:
+            self._take("jet_peak", model)
+
+    def _interpolate_histories(self, model, cur):
+        """Fill the output times passed in this step, linearly between the last two steps."""
+        t, t_prev, prev = model.t, self._t_prev, self._prev
+        out_t, hist = self.out_t, self.histories
+        while self._next_out < out_t.shape[0] and out_t[self._next_out] <= t + 1e-15:
+            i = self._next_out
+            s = (out_t[i] - t_prev) / (t - t_prev)
+            for k in hist:
+                hist[k][i] = prev[k] + s * (cur[k] - prev[k])
+            if hist["apex_displacement"][i] > self._best_da:
+                self._best_da = hist["apex_displacement"][i]
+                self._take("max_displacement", model)
+            self._next_out += 1
+
+    def result(self, model: CoupledModel, wall_s: float) -> RunResult:
+        """The RunResult of the finished run (``wall_s``: its wall time [s])."""
+        self._take("end", model)
+        hist = self.histories
+        # the jet is analytic: store eq. (11) exactly on the output grid, not interpolated
+        hist["jet_pressure_apex"] = (np.array([air_jet(t, 0.0, *model.jet) for t in self.out_t])
+                                     / MMHG_PA)
+        metrics, notes, extra = compute_metrics(
+            self.out_t * 1e3, hist, np.array(self.step_t), np.array(self.step_kappa),
+            np.array(self.step_fluid_p),
+            lambda t_ms: air_jet(t_ms * 1e-3, 0.0, *model.jet) / MMHG_PA, self.t_jet_peak * 1e3)
+        diagnostics = self._diagnostics(model, wall_s)
+        diagnostics.update(extra)
+        return RunResult(params=model.params, time=self.out_t * 1e3, histories=hist,
+                         snapshot_time=np.array([self.snapshot_t[lbl] for lbl in SNAPSHOT_LABELS]),
+                         snapshots=self._snapshot_arrays(), metrics=metrics, metric_notes=notes,
+                         diagnostics=diagnostics)
+
+    def _snapshot_arrays(self):
+        """(snapshot, node) arrays, NaN where the instant did not occur."""
+        template = self.snapshots["initial"]
+        arrays = {}
+        for name in template:
+            rows = [self.snapshots[lbl][name] if self.snapshots[lbl] is not None
+                    else np.full_like(template[name], np.nan) for lbl in SNAPSHOT_LABELS]
+            arrays[name] = np.stack(rows)
+        return arrays
+
+    def _diagnostics(self, model, wall_s):
+        dts = np.array(self.dts) if self.dts else np.array([0.0])
+        iters = self.iterations
+        return {
+            "steps": len(self.dts),
+            "dt_mean_us": float(dts.mean() * 1e6),
+            "dt_min_us": float(dts.min() * 1e6),
+            "dt_max_us": float(dts.max() * 1e6),
+            "n_fluid": int(model.chamber.n),
+            "n_cornea": int(model.X.shape[0]),
+            "mean_coupling_iterations": float(np.mean(iters)) if iters else 0.0,
+            "max_coupling_iterations": int(np.max(iters)) if iters else 0,
+            "max_coupling_residual": float(self.max_residual),
+            "mean_membrane_substeps": float(np.mean(self.substeps)) if self.substeps else 0.0,
+            "mean_hyperviscous_substeps": (float(np.mean(self.hv_substeps)) if self.hv_substeps
+                                           else 0.0),
+            "wall_s": wall_s,
+            "prestretch": model.cornea_model.lambda0,
+            "R_ref_mm": model.cornea_model.R_ref * 1e3,
+            "rest_shape_deviation_mm": model.rest_shape_deviation * 1e3,
+            "equilibrium_residual": model.equilibrium_residual,
+            "max_moment_condition": model.max_cond,
+            "hyperviscous_radius_per_gamma_c": model.hv_radius_max,
+            "max_volume_mismatch": self.max_volume_mismatch,
+            "mass_kg": float(model.mass.sum()),
+            "kappa_support": KAPPA,
+            "neighbour_searches": model.neighbours.searches,
+            "apex_fit_nodes": model.n_apex_fit,
+            "acoustic_cfl": model.si.cfl,
+            "viscous_limited_steps": int(self.viscous_limited_steps),
+        }

@@ -1,0 +1,39 @@
+"""The `airpuff` command: one home for every sub-command and the helpers they share.
+
+It sits at the top of the dependency stack (api -> sweep -> airpuff_core), so that the numerical
+core and the sweep machinery import nothing of the command line:
+
+* ``common``   -- ``OneLineParser``, ``fail`` (exit code 2, one line), ``add_run_options``,
+                  ``params_from_args``, ``TerminalProgress``
+* ``run``      -- ``airpuff run`` and ``airpuff plot``
+* ``sweep``    -- ``airpuff sweep``
+* ``identify`` -- ``airpuff identify``
+* ``serve``    -- ``airpuff serve``
+
+The entry point is ``api.cli:main`` (pyproject.toml); ``python -m api.cli`` runs the same.
+"""
+
+from __future__ import annotations
+
+from .common import OneLineParser
+from .identify import add_identify_parser
+from .run import add_plot_parser, add_run_parser
+from .serve import add_serve_parser
+from .sweep import add_sweep_parser
+
+
+def build_parser() -> OneLineParser:
+    parser = OneLineParser(prog="airpuff", description=(
+        "Coupled fluid-structure simulation of the corneal air-puff test."))
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
+    sub.required = True
+    for add in (add_run_parser, add_plot_parser, add_sweep_parser, add_serve_parser,
+                add_identify_parser):
+        add(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return int(args.func(args) or 0)
