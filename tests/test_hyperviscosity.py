@@ -1,6 +1,6 @@
-"""The stabilising hyperviscosity H = K^* L K (docs/model.md section 4) is consistent at the
-boundaries: it annihilates linear fields to round-off at wall, axis and cornea nodes (the
-Brookshaw L^3 it replaces does not), and it is self-adjoint and negative semi-definite in the
+"""The boundary-consistent hyperviscosity H = K^* L K (option ``hyperviscosity_operator``,
+docs/model.md section 4) annihilates linear fields to round-off at wall, axis and cornea nodes
+(the default Brookshaw L^3 does not), and it is self-adjoint and negative semi-definite in the
 area-weighted inner product, so it damps and never amplifies."""
 
 import numpy as np
@@ -15,13 +15,13 @@ from airpuff_core.kernels.nodes import AXIS, CORNEA, INTERIOR, WALL
 
 @pytest.fixture(scope="module")
 def model():
-    return CoupledModel(RunParams(resolution="coarse"))
+    return CoupledModel(RunParams(resolution="coarse", hyperviscosity_operator="consistent"))
 
 
 def _apply(model, f, parity):
     n = f.shape[0]
     out, w1, w2 = np.empty(n), np.empty(n), np.empty(n)
-    return model.ops_n.hyperviscous(f, parity, model.hv_scale_unit, w1, w2, out)
+    return model.ops_n.hyperviscous(f, parity, model.hv_scale_unit, w1, w2, out, consistent=True)
 
 
 def _brookshaw_cubed(model, f, parity):
@@ -88,11 +88,10 @@ def test_self_adjoint_and_negative_semi_definite(model, parity):
 
 @pytest.mark.parametrize("parity", [1.0, -1.0])
 def test_with_brookshaw_coefficients_it_is_the_former_l_cubed(parity):
-    """K = L makes K^* = L (L is self-adjoint in the weight), so H = L^3, the former operator:
-    a check of the adjoint's code against three plain Brookshaw passes, on a random field (zero
-    on the axis for the odd parity, as v_x is).  Through the solver this path reproduces the
-    former coarse metrics exactly (P1 18.0232, P2 19.4111 mmHg)."""
-    model = CoupledModel(RunParams(resolution="coarse"))
+    """K = L makes K^* = L (L is self-adjoint in the weight), so K^* L K = L^3, the default
+    operator: a check of the adjoint's code against three plain Brookshaw passes, on a random
+    field (zero on the axis for the odd parity, as v_x is)."""
+    model = CoupledModel(RunParams(resolution="coarse", hyperviscosity_operator="consistent"))
     ops = model.ops_n
     ops.lap_c[:] = ops.lap_b
     f = np.random.default_rng(1).standard_normal(model.x.size)

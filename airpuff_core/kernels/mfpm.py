@@ -122,7 +122,7 @@ LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCA
 @njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
                      cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_b, lap_c,
-                     store_laplacian):
+                     store_laplacian, store_consistent):
     """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
     to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
     or only (f_x, f_y) when ``out`` has two columns.
@@ -154,7 +154,8 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
     b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in
     lap_*[start[i] ... start[i] + lap_count[i] - 1], for ``brookshaw_laplacian`` and the
-    hyperviscosity, and with them the coefficients of the linearly consistent Laplacian
+    hyperviscosity, and with them (``store_consistent`` too) the coefficients of the linearly
+    consistent Laplacian
     c_ij = b_ij - m_i . g_ij (see ``consistent_laplacian``): m_i = sum_j b_ij (x_j - x_i) is the
     first moment of the Brookshaw weights (zero on a full symmetric support, not at a wall) and
     g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).
@@ -284,7 +285,7 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
                                  i43, i44))
         if not (cond[i] < cond_max) and status == 0:
             status = i + 1
-        if store_laplacian:
+        if store_consistent:
             # c_k = b_k - m . g_k with the first moment m = s sum_k b_k (u_k, v_k) and the
             # gradient weights g_k = (1/s) (A^-1 P_k)[0:2] W_k: the spacing scale s cancels
             mx = 0.0
@@ -366,29 +367,37 @@ def pair_operator_adjoint(f, parity, start, nbr, mirrored, count, coef, area, ou
 
 
 @njit(cache=True)
-def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area, scale, work1,
-                      work2, out):
-    """out_i = scale_i (H f)_i with H = K^* L K (scale_i = gamma c h_i^5): L the Brookshaw
-    Laplacian, K the linearly consistent Laplacian (coefficients ``lap_c``), K^* its adjoint.
+def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area, consistent,
+                      scale, work1, work2, out):
+    """out_i = scale_i (H f)_i (scale_i = gamma c h_i^5), with H = L^3 (``consistent`` False: the
+    paper-reproduction operator) or H = K^* L K (``consistent`` True): L the Brookshaw Laplacian,
+    K the linearly consistent Laplacian (coefficients ``lap_c``), K^* its adjoint.
 
-    K f = 0 for every linear f, at boundary nodes too, so H annihilates linear fields.  With the
-    weight A of ``pair_operator_adjoint`` (node areas, halved on the axis), A L is symmetric and
-    negative semi-definite (for an odd field on the subspace where it vanishes on the axis), so
-    A H = K^T (A L) K is too: H damps and never amplifies, and acts mostly on grid-scale modes
-    (eigenvalues grow like k^6).
+    L^3 is negative semi-definite, but a truncated support at a wall or the cornea makes L f != 0
+    for a linear f there.  K f = 0 for every linear f, at boundary nodes too, so K^* L K
+    annihilates linear fields.  With the weight A of ``pair_operator_adjoint`` (node areas,
+    halved on the axis), A L is symmetric and negative semi-definite (for an odd field on the
+    subspace where it vanishes on the axis), so A K^* L K = K^T (A L) K is too.  Either H damps
+    and never amplifies, and acts mostly on grid-scale modes (eigenvalues grow like k^6).
     """
-    brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_c, work1)
-    brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
-    pair_operator_adjoint(work2, parity, start, nbr, mirrored, count, lap_c, area, out)
+    if consistent:
+        brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_c, work1)
+        brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
+        pair_operator_adjoint(work2, parity, start, nbr, mirrored, count, lap_c, area, out)
+    else:
+        brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, work1)
+        brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
+        brookshaw_laplacian(work2, parity, start, nbr, mirrored, count, lap_b, out)
     for i in range(f.shape[0]):
         out[i] *= scale[i]
 
 
 @njit(cache=True)
-def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, out_vx, out_vy):
-    """The pair operator of coefficients ``lap_b`` (Brookshaw's, or the consistent ``lap_c``) on
-    the three flow fields in one pass over the pairs (rho and v_y even in x, v_x odd): each
-    field's sum is the one ``brookshaw_laplacian`` forms."""
+def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, coef_rho, coef_v, out_rho, out_vx,
+                    out_vy):
+    """The pair operator of coefficients ``coef_rho`` on rho and ``coef_v`` on v (each Brookshaw's
+    ``lap_b`` or the consistent ``lap_c``) on the three flow fields in one pass over the pairs
+    (rho and v_y even in x, v_x odd): each field's sum is the one ``brookshaw_laplacian`` forms."""
     for i in range(rho.shape[0]):
         acc_r = 0.0
         acc_x = 0.0
@@ -398,9 +407,9 @@ def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, ou
         yi = vy[i]
         for k in range(start[i], start[i] + count[i]):
             j = nbr[k]
-            b = lap_b[k]
+            b = coef_v[k]
             xj = -vx[j] if mirrored[k] else vx[j]
-            acc_r += b * (rho[j] - ri)
+            acc_r += coef_rho[k] * (rho[j] - ri)
             acc_x += b * (xj - xi)
             acc_y += b * (vy[j] - yi)
         out_rho[i] = acc_r
@@ -409,14 +418,16 @@ def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, ou
 
 
 @njit(cache=True)
-def _adjoint_flow(rho, vx, vy, start, nbr, mirrored, count, coef, area, out_rho, out_vx, out_vy):
-    """``pair_operator_adjoint`` of the three flow fields in one pass over the pairs (rho and v_y
-    even in x, v_x odd)."""
+def _adjoint_flow(rho, vx, vy, start, nbr, mirrored, count, coef, area, with_density, out_rho,
+                  out_vx, out_vy):
+    """``pair_operator_adjoint`` of v_x (odd in x) and v_y (even), and with ``with_density`` of
+    rho (even; otherwise ``out_rho`` is left alone), in one pass over the pairs."""
     n = rho.shape[0]
     for i in range(n):
-        out_rho[i] = 0.0
         out_vx[i] = 0.0
         out_vy[i] = 0.0
+        if with_density:
+            out_rho[i] = 0.0
     for i in range(n):
         a = area[i]
         ar = a * rho[i]
@@ -427,25 +438,31 @@ def _adjoint_flow(rho, vx, vy, start, nbr, mirrored, count, coef, area, out_rho,
             j = nbr[k]
             c = coef[k]
             diagonal += c
-            out_rho[j] += c * ar
+            if with_density:
+                out_rho[j] += c * ar
             out_vx[j] += -c * ax if mirrored[k] else c * ax
             out_vy[j] += c * ay
-        out_rho[i] -= diagonal * ar
+        if with_density:
+            out_rho[i] -= diagonal * ar
         out_vx[i] -= diagonal * ax
         out_vy[i] -= diagonal * ay
     for i in range(n):
         inv_a = 1.0 / area[i]
-        out_rho[i] *= inv_a
+        if with_density:
+            out_rho[i] *= inv_a
         out_vx[i] *= inv_a
         out_vy[i] *= inv_a
 
 
 @njit(cache=True)
 def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, mirrored, count,
-                                 lap_b, lap_c, area, scale, dt, n_sub, work, out_rho, out_vx,
-                                 out_vy):
-    """Change of rho, v_x and v_y over dt under d f/dt = scale H f (H = K^* L K, see
-    ``hyperviscous_term``), by n_sub explicit Euler sub-steps: out_f = g(dt) - f with g(0) = f.
+                                 lap_b, lap_c, area, consistent_density, consistent_velocity,
+                                 scale, dt, n_sub, work, out_rho, out_vx, out_vy):
+    """Change of rho, v_x and v_y over dt under d f/dt = scale H f, by n_sub explicit Euler
+    sub-steps: out_f = g(dt) - f with g(0) = f.  H is K^* L K on the density with
+    ``consistent_density`` and on the velocity with ``consistent_velocity``, L^3 otherwise (see
+    ``hyperviscous_term``).  ``consistent_density`` requires ``consistent_velocity`` (the
+    operators ``consistent`` and ``consistent_velocity`` of docs/model.md section 4).
 
     Nodes with ``pinned_vx`` / ``pinned_vy`` keep their velocity component (Dirichlet nodes: walls,
     the cornea, v_x on the axis); no density is pinned.  Sub-cycling keeps dt/n_sub within the
@@ -462,9 +479,18 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
         g_x[i] = vx[i]
         g_y[i] = vy[i]
     for _ in range(n_sub):
-        _brookshaw_flow(g_r, g_x, g_y, start, nbr, mirrored, count, lap_c, a_r, a_x, a_y)
-        _brookshaw_flow(a_r, a_x, a_y, start, nbr, mirrored, count, lap_b, b_r, b_x, b_y)
-        _adjoint_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_c, area, a_r, a_x, a_y)
+        _brookshaw_flow(g_r, g_x, g_y, start, nbr, mirrored, count,
+                        lap_c if consistent_density else lap_b,
+                        lap_c if consistent_velocity else lap_b, a_r, a_x, a_y)
+        _brookshaw_flow(a_r, a_x, a_y, start, nbr, mirrored, count, lap_b, lap_b, b_r, b_x, b_y)
+        if consistent_velocity:
+            _adjoint_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_c, area,
+                          consistent_density, a_r, a_x, a_y)
+            if not consistent_density:
+                brookshaw_laplacian(b_r, 1.0, start, nbr, mirrored, count, lap_b, a_r)
+        else:
+            _brookshaw_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_b, lap_b, a_r, a_x,
+                            a_y)
         for i in range(n):
             s = scale[i]
             g_r[i] += h * (a_r[i] * s)
