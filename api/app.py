@@ -1,6 +1,6 @@
 """The FastAPI application: settings, lifespan (the job runner), auth, body limit, error format.
 
-The routes are in ``api.routes``.
+The routes are in ``api.routes``, the browser pages in ``api.pages``.
 
 Long work never runs here.  ``POST /sweeps`` writes a job row (and its grid) to SQLite and answers
 202 with a Location; the job runner (``api.runner``, a thread that owns the Dask client) picks the
@@ -11,7 +11,6 @@ only the runner thread uses it).
 
 
 import logging
-import secrets
 import sqlite3
 from contextlib import asynccontextmanager
 from typing import Optional
@@ -27,7 +26,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from airpuff_core import __version__
 from airpuff_core.params import PARAMETERS
 
-from . import db, routes, schemas
+from . import auth, db, pages, routes, schemas
 from .settings import Settings
 
 log = logging.getLogger("airpuff.api")
@@ -74,11 +73,15 @@ def _auth_dependency(settings: Settings):
     if not settings.token:
         return None
     bearer = HTTPBearer(auto_error=False, description="the value of AIRPUFF_API_TOKEN")
-    expected = settings.token.encode()
+    token = settings.token
 
-    def require_token(cred: Optional[HTTPAuthorizationCredentials] = Depends(bearer)) -> None:
-        ok = (cred is not None and cred.scheme.lower() == "bearer"
-              and secrets.compare_digest(cred.credentials.encode(), expected))
+    def require_token(request: Request,
+                      cred: Optional[HTTPAuthorizationCredentials] = Depends(bearer)) -> None:
+        ok = cred is not None and cred.scheme.lower() == "bearer" and auth.token_matches(
+            cred.credentials, token)
+        # The pages' session cookie opens the read-only endpoints (their links and the progress
+        # refresh); changing state through the API needs the bearer header (see api.auth).
+        ok = ok or (request.method in auth.SAFE_METHODS and auth.session_ok(request, token))
         if not ok:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing or wrong bearer token",
                                 headers={"WWW-Authenticate": "Bearer"})
@@ -149,7 +152,7 @@ def create_app(settings: Settings) -> FastAPI:
 
                 await anyio.to_thread.run_sync(runner.stop)
 
-    auth = _auth_dependency(settings)
+    token_dependency = _auth_dependency(settings)
     app = FastAPI(
         title="airpuff",
         version=__version__,
@@ -187,5 +190,6 @@ def create_app(settings: Settings) -> FastAPI:
         return JSONResponse({"detail": "the job database is busy; retry shortly"}, 503,
                             headers={"Retry-After": "2"})
 
-    app.include_router(routes.build_router(settings, SweepRequest, auth))
+    app.include_router(routes.build_router(settings, SweepRequest, token_dependency))
+    app.include_router(pages.router(settings, _describe))
     return app

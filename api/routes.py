@@ -54,6 +54,7 @@ def job_or_404(con, job_id: str) -> sqlite3.Row:
 
 
 def job_info(row: sqlite3.Row) -> dict[str, Any]:
+    """A job row as ``GET /sweeps/{id}`` reports it (``schemas.JobInfo``)."""
     spec = json.loads(row["spec_json"])
     request = {name: spec[name] for name in SWEPT}
     request.update(spec.get("options", {}))
@@ -79,36 +80,45 @@ def health(request: Request):
             "runner_error": runner.error, "workers": runner.n_workers}
 
 
+def create_job(con: sqlite3.Connection, settings: Settings,
+               values: dict[str, Any]) -> tuple[str, int]:
+    """Store a queued job for the request ``values`` (a ``SweepRequest`` validated by the schema,
+    as a dict); returns (job id, number of points).  Raises a 422 if the grid is larger than
+    ``settings.max_points`` or the solver rejects a combination of parameters.  ``POST /sweeps``
+    and the pages' sweep form (``api.pages``) both submit through here."""
+    values = dict(values)
+    axes = {name: values.pop(name) for name in SWEPT}
+    n = 1
+    for name in SWEPT:
+        n *= len(axes[name])
+    if n > settings.max_points:
+        shape = " x ".join(str(len(axes[k])) for k in SWEPT)
+        raise problem_422(
+            ["body"], "E0 x IOP x thickness x pmax",
+            f"E0 x IOP x thickness x pmax: the grid has {shape} = {n} points; "
+            f"accepted: at most {settings.max_points} points", "grid_too_large")
+    try:
+        spec = SweepSpec(**axes, options=values)
+        points = spec.validated_points()
+    except ParameterError as err:
+        raise problem_422(["body", err.name], err.name, str(err)) from None
+    job_id = uuid.uuid4().hex
+    rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
+    db.insert_job(con, job_id, spec.to_dict(), rows)
+    return job_id, len(rows)
+
+
 def make_submit(SweepRequest):  # noqa: N803 - a model class
     """The handler of ``POST /sweeps`` for the body model ``SweepRequest``."""
 
     def submit(body: SweepRequest, response: Response, request: Request,  # type: ignore[valid-type]
                con: sqlite3.Connection = Depends(get_db)):
-        settings = request.app.state.settings
-        values = body.model_dump()
-        axes = {name: values.pop(name) for name in SWEPT}
-        n = 1
-        for name in SWEPT:
-            n *= len(axes[name])
-        if n > settings.max_points:
-            shape = " x ".join(str(len(axes[k])) for k in SWEPT)
-            raise problem_422(
-                ["body"], "E0 x IOP x thickness x pmax",
-                f"E0 x IOP x thickness x pmax: the grid has {shape} = {n} points; "
-                f"accepted: at most {settings.max_points} points", "grid_too_large")
-        try:
-            spec = SweepSpec(**axes, options=values)
-            points = spec.validated_points()
-        except ParameterError as err:
-            raise problem_422(["body", err.name], err.name, str(err)) from None
-        job_id = uuid.uuid4().hex
-        rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
-        db.insert_job(con, job_id, spec.to_dict(), rows)
+        job_id, n_points = create_job(con, request.app.state.settings, body.model_dump())
         runner = request.app.state.runner
         if runner is not None:
             runner.wake()
         response.headers["Location"] = f"/sweeps/{job_id}"
-        return {"id": job_id, "status": "queued", "points_total": len(rows)}
+        return {"id": job_id, "status": "queued", "points_total": n_points}
 
     return submit
 
@@ -126,8 +136,10 @@ def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
     return job_info(job_or_404(con, job_id))
 
 
-def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-    row = job_or_404(con, job_id)
+def point_records(con: sqlite3.Connection, job_id: str) -> list[dict[str, Any]]:
+    """The points of a job as ``GET /sweeps/{id}/metrics`` reports them (``schemas.PointRecord``):
+    index, key, the four swept values, status, message, reused and every metric (None where
+    missing).  The pages (``api.pages``) show the same records."""
     points = []
     for p in db.job_points(con, job_id):
         rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
@@ -140,7 +152,13 @@ def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
         for name in METRICS:
             rec[name] = (m or {}).get(name)
         points.append(rec)
-    return {"id": job_id, "status": row["status"], "units": schemas.units(), "points": points}
+    return points
+
+
+def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
+    row = job_or_404(con, job_id)
+    return {"id": job_id, "status": row["status"], "units": schemas.units(),
+            "points": point_records(con, job_id)}
 
 
 def get_dataset(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):

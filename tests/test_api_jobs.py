@@ -28,13 +28,9 @@ OPTIONS = {"resolution": "coarse", "t_end": 1.0}
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    s = ServerProcess(tmp_path_factory.mktemp("jobs") / "data", "--workers", "2")
-    try:
-        s.start(wait_runner=True)
+    with ServerProcess(tmp_path_factory.mktemp("jobs") / "data", "--workers", "2").running(
+            wait_runner=True) as s:
         yield s
-    finally:
-        if s.proc is not None:
-            s.stop()
 
 
 @pytest.fixture

@@ -7,6 +7,7 @@ behind.  It prints the address it listens on; the helper waits for ``/health``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -14,6 +15,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Iterator
 
 import httpx
 
@@ -71,6 +73,15 @@ class ServerProcess:
                     raise AssertionError("server not healthy:\n" + self.log_text()[-3000:])
                 time.sleep(0.2)
         return self
+
+    @contextlib.contextmanager
+    def running(self, **start_options) -> Iterator["ServerProcess"]:
+        """The started server for the length of a ``with`` block (a module fixture's life)."""
+        try:
+            yield self.start(**start_options)
+        finally:
+            if self.proc is not None:
+                self.stop()
 
     def _check_alive(self) -> None:
         if self.proc is not None and self.proc.poll() is not None:
