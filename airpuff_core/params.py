@@ -103,9 +103,10 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("t_end", "ms", 35.0, 0.0, 10000.0, "simulated time"),
         _p("hyperviscosity", "1", 0.15, 0.0, 10.0,
            "strength gamma of the stabilising hyperviscosity gamma c h^5 H (0 switches it off; "
-           "H from hyperviscosity_operator). Smallest stable strength (eigenvalues, coarse / paper "
-           "resolution): brookshaw 0.025-0.05 / 0.05-0.075, consistent 0.094-0.103 / "
-           "0.0625-0.075, consistent_velocity 0.03-0.046 / below 0.125 (docs/model.md section 4)",
+           "H from hyperviscosity_operator). Smallest stable strength at coarse / paper "
+           "resolution: brookshaw 0.025-0.05 / 0.05-0.075 (jet runs), consistent 0.094-0.103 / "
+           "0.0625-0.075, consistent_velocity 0.041-0.053 / at most 0.125 (docs/model.md "
+           "section 4)",
            low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
         _p("cfl", "1", 0.6, 0.0, 0.6,
