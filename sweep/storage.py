@@ -49,7 +49,8 @@ NETCDF_MAGIC = (b"\x89HDF", b"CDF\x01", b"CDF\x02")
 # Run options added after points were first stored, with the value that reproduces the runs made
 # before them.  While an option holds that value it is left out of the key, so stored points keep
 # their keys; any other value enters the key.
-KEY_NEUTRAL = {"model": "paper", "cornea": "membrane", "limbus": "clamped"}
+KEY_NEUTRAL = {"model": "paper", "cornea": "membrane", "limbus": "clamped",
+               "hyperviscosity_operator": "brookshaw"}
 
 
 def point_key(params) -> str:
