@@ -1,4 +1,4 @@
-"""One coupled time step: membrane cornea + MFPM fluid, Dirichlet-Neumann iterations.
+"""One coupled time step: cornea (membrane or shell) + MFPM fluid, Dirichlet-Neumann iterations.
 
 ``CoupledModel`` holds the state of one run (SI units) and advances it from t^n to
 t^{n+1} = t^n + dt in three parts, each a method:
@@ -38,8 +38,9 @@ from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_dive
 from .kernels.membrane import air_jet
 from .kernels.mfpm import hyperviscous_flow_increments
 from .kernels.nodes import AXIS, CORNEA, WALL
-from .membrane import apex_curvature, apex_fit_nodes, build_membrane, static_equilibrium
+from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from .params import RunParams
+from .shell import build_shell
 
 # dt <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2, unstable at 2.0 (measured)
 HV_SAFETY = 1.4
@@ -78,7 +79,8 @@ class CoupledModel:
     ``cornea_nodes`` lie on the cornea, apex first); cornea nodes ``X, Y`` [m], ``VX, VY`` [m/s];
     time ``t`` [s].  ``cornea_model`` is the cornea's mechanics: ``substeps(X, Y, dt)`` and
     ``advance(X, Y, VX, VY, p_start, p_end, t, dt, n_sub, jet)`` in the coupling, and its static
-    equilibrium at the start (``membrane.py``).
+    equilibrium at the start (``membrane.py``).  It is a ``ShellModel`` (``shell.py``) for both
+    corneas: the paper's membrane is the shell with bending rigidity 0, bit for bit.
 
     ``reuse=False`` rebuilds every operator and every derivative in full in each coupling
     iteration, instead of only what the moving cornea changes: the same answers, slower (a check
@@ -92,8 +94,9 @@ class CoupledModel:
         ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
                                           si.R_m, si.r_post_m, si.alpha0_rad)
         # the cornea's mechanics (``substeps``, ``advance``, static equilibrium)
-        self.cornea_model = build_membrane(ch.phi_cornea, si.R_m, si.p0_Pa, si.E0_Pa,
-                                           si.thickness_m, si.nu, si.fung_k, si.rho_cornea)
+        self.cornea_model = build_shell(ch.phi_cornea, si.R_m, si.p0_Pa, si.E0_Pa,
+                                        si.thickness_m, si.nu, si.fung_k, si.rho_cornea,
+                                        params.limbus, bending=params.cornea == "shell")
         self.jet = si.jet()
         n = ch.n
         self.kind = ch.kind

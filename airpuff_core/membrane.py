@@ -1,5 +1,6 @@
-"""The cornea: reference configuration, IOP prestress, the discrete static equilibrium, and the
-advance in time (Verlet sub-steps of ``kernels/membrane.py``) that the coupling calls.
+"""The cornea: reference configuration, IOP prestress and the discrete static equilibrium.  The
+advance in time is the shell's (``shell.py``): the paper's membrane is the shell with bending
+rigidity 0, computed by the same kernels bit for bit.
 
 The drawn arc (radius R) is the loaded state at IOP p0.  For a spherical membrane under uniform
 pressure the equibiaxial tension is p0 R / 2 (Laplace); for an equibiaxial membrane the Cauchy
@@ -16,15 +17,17 @@ membrane is in equilibrium with these loads to second order; the exact discrete 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels.membrane import (add_pressure_loads, advance_membrane, even_fit_curvature,
-                               fung_resultants, internal_forces, max_wave_speed)
+from .kernels.membrane import (add_pressure_loads, even_fit_curvature, fung_resultants,
+                               internal_forces, max_wave_speed)
 from .params import PRESTRETCH_MAX
 
-MEMBRANE_SAFETY = 0.4  # membrane sub-step <= MEMBRANE_SAFETY * min chord / wave speed
+# Verlet sub-step <= MEMBRANE_SAFETY * 2 / omega_max, the Verlet limit being 2 / omega_max; for the
+# membrane, whose highest frequency is 2 c / L_min, that is MEMBRANE_SAFETY * min chord / c
+MEMBRANE_SAFETY = 0.4
 
 
 def equibiaxial_tension(lam, Ebar, nu, k):
@@ -69,29 +72,24 @@ class MembraneModel:
     nu: float
     k: float
     rho_h: float  # mass per reference area [kg/m^2]
-    _work: tuple = field(init=False, repr=False)  # forces Fx, Fy [N] and load q [Pa] of advance()
 
-    def __post_init__(self):
-        self._work = tuple(np.empty(self.n) for _ in range(3))
+    stencil = 1  # the force on a node depends on the nodes up to this many away
 
     @property
     def n(self):
         return self.phi.shape[0]
+
+    @property
+    def length_scale(self):
+        """A length of the reference [m] (the radius R_ref, or the meridian's length when it is
+        not an arc), the scale of the finite-difference steps of ``static_equilibrium``."""
+        return self.R_ref if math.isfinite(self.R_ref) else float(self.L0.sum())
 
     def substeps(self, X, Y, dt):
         """Verlet sub-steps that resolve the fastest membrane wave of the state (X, Y) [m] in a
         step of dt [s]: dt / n <= MEMBRANE_SAFETY * min chord / wave speed."""
         c_wave = max_wave_speed(X, Y, self.L0, self.S0, self.Ebar, self.nu, self.k, self.rho_h)
         return max(1, int(math.ceil(dt / (MEMBRANE_SAFETY * self.L0.min() / c_wave))))
-
-    def advance(self, X, Y, VX, VY, p_start, p_end, t_start, dt, n_sub, jet):
-        """Advance the state (X, Y [m], VX, VY [m/s], in place) from t_start to t_start + dt [s] in
-        n_sub Verlet sub-steps, with the fluid pressure on the cornea going linearly from p_start
-        to p_end [Pa] and the air jet ``jet`` (``SIParams.jet()``) outside."""
-        w = self._work
-        advance_membrane(X, Y, VX, VY, self.mass, self.phi, self.L0, self.S0, self.A0, self.Ebar,
-                         self.nu, self.k, p_start, p_end, t_start, dt, n_sub, jet,
-                         w[0], w[1], w[2])
 
     def forces(self, X, Y, q):
         """Total nodal forces [N] at positions (X, Y) under net inside pressure q [Pa]."""
@@ -144,8 +142,10 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
     node = np.concatenate(([0], np.repeat(np.arange(1, n - 1), 2)))
     is_x = np.concatenate(([False], np.tile([True, False], n - 2)))
     ix, iy = node[is_x], node[~is_x]
-    # rows touched by each unknown: the force components of its node and of the two neighbours
-    rows_of_node = {i: np.flatnonzero(np.abs(node - i) <= 1) for i in range(n - 1)}
+    # rows touched by each unknown: the force components of the nodes within the stencil
+    reach = model.stencil
+    colours = 2 * reach + 1
+    rows_of_node = {i: np.flatnonzero(np.abs(node - i) <= reach) for i in range(n - 1)}
 
     def residual(Xc, Yc):
         Fx, Fy = model.forces(Xc, Yc, q)
@@ -155,7 +155,7 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
         return r
 
     scale = np.max(np.abs(q)) * np.max(model.A0) + 1e-300
-    eps = 1e-9 * model.R_ref
+    eps = 1e-9 * model.length_scale
     res = residual(X, Y)
     rel = float(np.max(np.abs(res)) / scale)
     best = (rel, X.copy(), Y.copy())
@@ -164,8 +164,8 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
             break
         J = np.zeros((node.size, node.size))
         for coord in (True, False):
-            for colour in range(3):
-                cols = np.flatnonzero((is_x == coord) & (node % 3 == colour))
+            for colour in range(colours):
+                cols = np.flatnonzero((is_x == coord) & (node % colours == colour))
                 if cols.size == 0:
                     continue
                 step = np.zeros(n)
@@ -174,7 +174,7 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
                     diff = residual(X + step, Y) - residual(X - step, Y)
                 else:
                     diff = residual(X, Y + step) - residual(X, Y - step)
-                for col in cols:  # rows of nodes three apart do not overlap (see above)
+                for col in cols:  # rows of nodes `colours` apart do not overlap (see above)
                     rows = rows_of_node[node[col]]
                     J[rows, col] = diff[rows] / (2 * eps)
         delta = np.linalg.solve(J, -res)

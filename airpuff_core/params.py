@@ -24,6 +24,12 @@ MMHG_PA = 133.322  # Pa per mmHg
 # cornea that needs more is too soft for the membrane model.
 PRESTRETCH_MAX = 10.0
 
+# The choices each ``model`` preset makes; an option given explicitly overrides its preset.
+MODEL_PRESETS: dict[str, dict[str, str]] = {
+    "paper": {"cornea": "membrane"},
+    "clinical": {"cornea": "shell"},
+}
+
 
 class ParameterError(ValueError):
     """An invalid run parameter.  ``str(err)`` is one line naming the parameter and its range."""
@@ -121,7 +127,11 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "c_rule": ("running_max", "per_step", "fixed"),
     "jet_start": ("as_written", "equilibrium"),
     "hyperviscosity_operator": ("brookshaw", "consistent", "consistent_velocity"),
+    "model": tuple(MODEL_PRESETS),
+    "cornea": ("membrane", "shell"),
+    "limbus": ("clamped", "pinned"),
 }
+# None: taken from the ``model`` preset (MODEL_PRESETS) unless given
 CHOICE_DEFAULTS = {
     "resolution": "coarse",
     "geometry": "sector",
@@ -129,6 +139,9 @@ CHOICE_DEFAULTS = {
     "c_rule": "running_max",
     "jet_start": "as_written",
     "hyperviscosity_operator": "brookshaw",
+    "model": "paper",
+    "cornea": None,
+    "limbus": "clamped",
 }
 CHOICE_DESCRIPTIONS = {
     "resolution": "node count: coarse (~300 fluid nodes), paper (~1100), fine (~4500)",
@@ -140,7 +153,24 @@ CHOICE_DESCRIPTIONS = {
                                "reproduction), consistent (K* L K on density and velocity, zero "
                                "on linear fields at walls too) or consistent_velocity (K* L K on "
                                "velocity, L^3 on density)",
+    "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options "
+             "override it",
+    "cornea": "membrane (the paper's Fung membrane) or shell (the membrane with bending rigidity "
+              "D = E0 h^3/(12 (1 - nu^2)), Kirchhoff-Love, large rotations)",
+    "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
+              "rotate)",
 }
+
+
+
+def choice_default_text(name: str) -> str:
+    """The default of choice ``name`` in words: its value, or, for an option the ``model``
+    preset sets, what each preset gives (e.g. 'from model: membrane (paper), shell (clinical)')."""
+    if CHOICE_DEFAULTS[name] is not None:
+        return str(CHOICE_DEFAULTS[name])
+    return "from model: " + ", ".join(f"{preset[name]} ({m})" for m, preset in MODEL_PRESETS.items()
+                                      if name in preset)
+
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")
 
@@ -241,6 +271,9 @@ class RunParams:
     c_rule: str = CHOICE_DEFAULTS["c_rule"]
     jet_start: str = CHOICE_DEFAULTS["jet_start"]
     hyperviscosity_operator: str = CHOICE_DEFAULTS["hyperviscosity_operator"]
+    model: str = CHOICE_DEFAULTS["model"]
+    cornea: str | None = CHOICE_DEFAULTS["cornea"]
+    limbus: str = CHOICE_DEFAULTS["limbus"]
     max_coupling_iterations: int = INT_PARAMETERS["max_coupling_iterations"][0]
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 
@@ -259,10 +292,19 @@ class RunParams:
         return cls(**dict(values))
 
     def replace(self, **changes) -> "RunParams":
+        """A copy with ``changes``; a new ``model`` re-derives the options of its preset that
+        ``changes`` does not set."""
+        if "model" in changes:
+            for name in MODEL_PRESETS.get(changes["model"], {}):
+                changes.setdefault(name, None)
         return dataclasses.replace(self, **changes)
 
     # -- validation -------------------------------------------------------------------------
     def validate(self) -> None:
+        if self.model in MODEL_PRESETS:
+            for name, value in MODEL_PRESETS[self.model].items():
+                if getattr(self, name) is None:
+                    object.__setattr__(self, name, value)
         for name, spec in PARAMETERS.items():
             object.__setattr__(self, name, spec.check(getattr(self, name)))
         for name, allowed in CHOICES.items():

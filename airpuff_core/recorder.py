@@ -183,6 +183,7 @@ class Recorder:
                                            else 0.0),
             "wall_s": wall_s,
             "prestretch": model.cornea_model.lambda0,
+            "bending_rigidity_N_m": model.cornea_model.D,
             "R_ref_mm": model.cornea_model.R_ref * 1e3,
             "rest_shape_deviation_mm": model.rest_shape_deviation * 1e3,
             "equilibrium_residual": model.equilibrium_residual,

@@ -21,6 +21,7 @@ from airpuff_core.params import (
     PARAMETERS,
     SWEPT,
     ParamSpec,
+    choice_default_text,
 )
 from airpuff_core.result import METRICS
 from sweep.identification import DEFAULT_SIGMA, MEASURABLE, UNITS
@@ -64,7 +65,8 @@ def _choice_field(name: str) -> tuple[Any, Any]:
     allowed = CHOICES[name]
     return (Literal[allowed], Field(default=CHOICE_DEFAULTS[name],  # type: ignore[valid-type]
                                     description=f"{CHOICE_DESCRIPTIONS[name]}; one of "
-                                                + ", ".join(allowed)))
+                                                + ", ".join(allowed)
+                                                + f"; default {choice_default_text(name)}"))
 
 
 def _int_field(name: str) -> tuple[Any, Any]:

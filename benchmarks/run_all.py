@@ -1,4 +1,4 @@
-"""`make bench`: every benchmark figure of docs/performance.md, printed (about 8 minutes).
+"""`make bench`: every benchmark figure of docs/performance.md, printed (about 11 minutes).
 
     python benchmarks/run_all.py            # all
     python benchmarks/run_all.py --quick    # skip the paper-resolution runs and the sweep
@@ -13,7 +13,7 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from benchmarks import bench_compile, bench_mfpm, bench_sweep, run_default  # noqa: E402
+from benchmarks import bench_compile, bench_mfpm, bench_shell, bench_sweep, run_default  # noqa: E402
 
 
 def main(argv):
@@ -24,6 +24,7 @@ def main(argv):
     run_default.main("coarse", repeat=3)
     if not quick:
         run_default.main("paper", repeat=3)
+        bench_shell.main("paper", repeat=3)
         bench_sweep.main(["--repeat", "2"])
 
 

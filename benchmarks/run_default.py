@@ -54,12 +54,19 @@ def main(resolution="coarse", repeat=1, **overrides):
     return r
 
 
+def parse_timing_args(doc, resolution="coarse", repeat=1, operator=False):
+    """``[resolution] [--repeat N]`` of the timing scripts (and ``--operator``, the
+    hyperviscosity operator, with ``operator``)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("resolution", nargs="?", default=resolution, choices=("coarse", "paper", "fine"))
+    ap.add_argument("--repeat", type=int, default=repeat, help=f"runs to time (default {repeat})")
+    if operator:
+        ap.add_argument("--operator", default=CHOICE_DEFAULTS["hyperviscosity_operator"],
+                        choices=CHOICES["hyperviscosity_operator"],
+                        help="hyperviscosity operator (docs/model.md section 4)")
+    return ap.parse_args()
+
+
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("resolution", nargs="?", default="coarse", choices=("coarse", "paper", "fine"))
-    ap.add_argument("--repeat", type=int, default=1, help="runs to time (default 1)")
-    ap.add_argument("--operator", default=CHOICE_DEFAULTS["hyperviscosity_operator"],
-                    choices=CHOICES["hyperviscosity_operator"],
-                    help="hyperviscosity operator (docs/model.md section 4)")
-    args = ap.parse_args()
+    args = parse_timing_args(__doc__, operator=True)
     main(args.resolution, args.repeat, hyperviscosity_operator=args.operator)

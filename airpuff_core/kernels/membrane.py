@@ -1,4 +1,4 @@
-"""Axisymmetric Fung membrane in discrete-energy form, lumped pressure loads, Verlet sub-steps (SI).
+"""Axisymmetric Fung membrane in discrete-energy form, lumped pressure loads (SI).
 
 Nodes k = 0..N-1 at reference angles phi_k = k dphi on the stress-free arc of radius R_ref;
 node 0 is the apex (on the axis), node N-1 the limbus (fixed).  Segment s joins nodes s and s+1:
@@ -14,7 +14,8 @@ A uniformly scaled arc has lambda1 = lambda2 exactly in every segment.  The inte
 is -dPi/dX.  The net pressure q = p_fluid - p_air acts on the tributary area of each node (half of
 each adjacent segment, as a surface of revolution) along the segment normal: these lumped loads
 balance the apex to second order (2 N kappa = q), which consistent linear-element loads do not.
-With k = 0 the law is exactly the Saint Venant-Kirchhoff membrane.
+With k = 0 the law is exactly the Saint Venant-Kirchhoff membrane.  The time integration (Verlet
+sub-steps) is ``kernels/shell.py``'s, for the membrane (bending rigidity 0) and the shell alike.
 """
 
 import numpy as np
@@ -29,6 +30,34 @@ def fung_resultants(E1, E2, Ebar, nu, k):
 
 
 @njit(cache=True)
+def segment_strains(X, Y, L0, S0, s):
+    """Green-Lagrange strains (E1 meridional, E2 hoop) of segment s:
+    E1 = (|X_{s+1} - X_s|^2 / L0_s^2 - 1) / 2,  E2 = (((x_s + x_{s+1}) / S0_s)^2 - 1) / 2."""
+    dx = X[s + 1] - X[s]
+    dy = Y[s + 1] - Y[s]
+    E1 = 0.5 * ((dx * dx + dy * dy) / (L0[s] * L0[s]) - 1.0)
+    lam2 = (X[s] + X[s + 1]) / S0[s]
+    return E1, 0.5 * (lam2 * lam2 - 1.0)
+
+
+@njit(cache=True)
+def add_segment_forces(X, Y, L0, S0, A0, s, N1, N2, Fx, Fy):
+    """Add -d(A0_s W_s)/dX [N] of segment s carrying the resultants N1, N2 [N/m] to Fx, Fy:
+    dW = N1 dE1 + N2 dE2 with dE1/dX = (X_{s+1} - X_s) . d/L0^2 and dE2/dx = lambda2 / S0."""
+    dx = X[s + 1] - X[s]
+    dy = Y[s + 1] - Y[s]
+    lam2 = (X[s] + X[s + 1]) / S0[s]
+    g1 = A0[s] * N1 / (L0[s] * L0[s])
+    Fx[s] += g1 * dx
+    Fy[s] += g1 * dy
+    Fx[s + 1] -= g1 * dx
+    Fy[s + 1] -= g1 * dy
+    g2 = A0[s] * N2 * lam2 / S0[s]
+    Fx[s] -= g2
+    Fx[s + 1] -= g2
+
+
+@njit(cache=True)
 def internal_forces(X, Y, L0, S0, A0, Ebar, nu, k, Fx, Fy):
     """Fx, Fy = -dPi/dX [N] (overwritten)."""
     n = X.shape[0]
@@ -36,20 +65,9 @@ def internal_forces(X, Y, L0, S0, A0, Ebar, nu, k, Fx, Fy):
         Fx[i] = 0.0
         Fy[i] = 0.0
     for s in range(n - 1):
-        dx = X[s + 1] - X[s]
-        dy = Y[s + 1] - Y[s]
-        E1 = 0.5 * ((dx * dx + dy * dy) / (L0[s] * L0[s]) - 1.0)
-        lam2 = (X[s] + X[s + 1]) / S0[s]
-        E2 = 0.5 * (lam2 * lam2 - 1.0)
+        E1, E2 = segment_strains(X, Y, L0, S0, s)
         N1, N2 = fung_resultants(E1, E2, Ebar, nu, k)
-        g1 = A0[s] * N1 / (L0[s] * L0[s])
-        Fx[s] += g1 * dx
-        Fy[s] += g1 * dy
-        Fx[s + 1] -= g1 * dx
-        Fy[s + 1] -= g1 * dy
-        g2 = A0[s] * N2 * lam2 / S0[s]
-        Fx[s] -= g2
-        Fx[s + 1] -= g2
+        add_segment_forces(X, Y, L0, S0, A0, s, N1, N2, Fx, Fy)
 
 
 @njit(cache=True)
@@ -78,45 +96,6 @@ def air_jet(t, phi, pmax, a, b, T, t0):
     """Eq. (11): p_a = pmax exp(-a sin^2 phi) exp(-b (t - t0)^2 / T^2)  [Pa]."""
     s = np.sin(phi)
     return pmax * np.exp(-a * s * s) * np.exp(-b * (t - t0) * (t - t0) / (T * T))
-
-
-@njit(cache=True)
-def _total_forces(X, Y, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end, frac, t, jet, Fx, Fy, q):
-    for i in range(X.shape[0]):
-        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - air_jet(t, phi[i], jet[0], jet[1],
-                                                                      jet[2], jet[3], jet[4])
-    internal_forces(X, Y, L0, S0, A0, Ebar, nu, k, Fx, Fy)
-    add_pressure_loads(X, Y, q, Fx, Fy)
-
-
-@njit(cache=True)
-def advance_membrane(X, Y, VX, VY, mass, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end,
-                     t_start, dt, n_sub, jet, Fx, Fy, q):
-    """Velocity-Verlet sub-steps from t_start to t_start + dt (in place).
-
-    The fluid pressure on the cornea is interpolated linearly from p_start (at t_start) to p_end;
-    the jet (jet = pmax, a, b, T, t0) is evaluated at each sub-step.  Apex: x = 0 (u = 0; w' = 0
-    holds by symmetry of the energy).  Limbus: fixed (eq. 10).
-    """
-    n = X.shape[0]
-    h = dt / n_sub
-    _total_forces(X, Y, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end, 0.0, t_start, jet, Fx, Fy, q)
-    for m in range(n_sub):
-        for i in range(n - 1):
-            VX[i] += 0.5 * h * Fx[i] / mass[i]
-            VY[i] += 0.5 * h * Fy[i] / mass[i]
-        VX[0] = 0.0
-        for i in range(n - 1):
-            X[i] += h * VX[i]
-            Y[i] += h * VY[i]
-        frac = (m + 1.0) / n_sub
-        _total_forces(X, Y, phi, L0, S0, A0, Ebar, nu, k, p_start, p_end, frac,
-                      t_start + (m + 1) * h, jet, Fx, Fy, q)
-        for i in range(n - 1):
-            VX[i] += 0.5 * h * Fx[i] / mass[i]
-            VY[i] += 0.5 * h * Fy[i] / mass[i]
-        VX[0] = 0.0
-        X[0] = 0.0
 
 
 @njit(cache=True)

@@ -1,0 +1,52 @@
+"""Cost of the shell cornea against the membrane: one default run of each, interleaved (one core).
+
+    python benchmarks/bench_shell.py [resolution] [--repeat N]
+
+The two runs alternate N times in this process (kernels compiled or loaded first), so that the
+machine's drift (20-30 % from minute to minute here) hits both alike; the fastest and the median
+wall time of each, the ratio of the fastest and the median ratio of the pairs are printed, with
+the steps and the cornea sub-steps that explain it.  Aim: the shell at most 1.3 times the
+membrane at paper resolution.
+"""
+
+import os
+import statistics
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from run_default import parse_timing_args  # noqa: E402
+
+from airpuff_core import RunParams, simulate  # noqa: E402
+
+CORNEAS = ("membrane", "shell")
+
+
+def main(resolution="paper", repeat=3):
+    params = {c: RunParams(resolution=resolution, cornea=c) for c in CORNEAS}
+    for p in params.values():
+        simulate(p.replace(t_end=0.05))  # compile or load the kernels
+    walls = {c: [] for c in CORNEAS}
+    last = {}
+    for _ in range(repeat):
+        for c in CORNEAS:
+            t0 = time.perf_counter()
+            last[c] = simulate(params[c])
+            walls[c].append(time.perf_counter() - t0)
+    print(f"shell against membrane, {resolution} resolution, {repeat} interleaved pairs")
+    for c in CORNEAS:
+        d = last[c].diagnostics
+        print(f"  {c:8s}: wall {min(walls[c]):.1f} s fastest (median "
+              f"{statistics.median(walls[c]):.1f} s), {d['steps']} steps, dt mean "
+              f"{d['dt_mean_us']:.2f} us, cornea sub-steps per step "
+              f"{d['mean_membrane_substeps']:.2f}, DN iterations {d['mean_coupling_iterations']:.2f}")
+    pairs = [s / m for s, m in zip(walls["shell"], walls["membrane"])]
+    print(f"  ratio shell / membrane: {min(walls['shell']) / min(walls['membrane']):.2f} "
+          f"(fastest), {statistics.median(pairs):.2f} (median of pairs); aim <= 1.3")
+    return walls
+
+
+if __name__ == "__main__":
+    args = parse_timing_args(__doc__, "paper", 3)
+    main(args.resolution, args.repeat)
