@@ -97,7 +97,7 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("pmax", "kPa", 10.0, 0.0, 50.0, "peak air-jet pressure", low_inc=True),
         _p("R", "mm", 7.0, 3.0, 15.0, "radius of the corneal arc"),
         _p("r_post", "mm", 2.04, 0.5, 10.0, "radius of the rigid posterior support (sector geometry)"),
-        _p("alpha0", "deg", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True),
+        _p("alpha0", "degree", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True),
         _p("rho_cornea", "kg/m^3", 1000.0, 100.0, 5000.0, "density of the cornea"),
         _p("rho_fluid", "kg/m^3", 1000.0, 100.0, 5000.0, "reference density of the aqueous humour"),
         _p("mu", "Pa s", 7.5e-4, 0.0, 10.0, "viscosity of the aqueous humour", low_inc=True),
@@ -114,7 +114,11 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("coupling_tol", "1", 1e-4, 0.0, 0.1, "Dirichlet-Neumann tolerance, eq. (6)"),
         _p("t_end", "ms", 35.0, 0.0, 10000.0, "simulated time"),
         _p("hyperviscosity", "1", 0.15, 0.0, 10.0,
-           "strength gamma of the stabilising hyperviscosity gamma c h^5 L^3 (0 switches it off)",
+           "strength gamma of the stabilising hyperviscosity gamma c h^5 H (0 switches it off; "
+           "H from hyperviscosity_operator). Smallest stable strength at coarse / paper "
+           "resolution: brookshaw 0.025-0.05 / 0.05-0.075 (jet runs), consistent 0.094-0.103 / "
+           "0.0625-0.075, consistent_velocity 0.041-0.053 / at most 0.125 (docs/model.md "
+           "section 4)",
            low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
         _p("cfl", "1", 0.6, 0.0, 0.6,
@@ -139,6 +143,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "c_rule": ("running_max", "per_step", "fixed"),
     "jet_start": ("as_written", "equilibrium"),
     "globe": ("rigid", "compliant"),
+    "hyperviscosity_operator": ("brookshaw", "consistent", "consistent_velocity"),
     "model": tuple(MODEL_PRESETS),
     "cornea": ("membrane", "shell"),
     "limbus": ("clamped", "pinned"),
@@ -151,6 +156,7 @@ CHOICE_DEFAULTS = {
     "c_rule": "running_max",
     "jet_start": "as_written",
     "globe": None,
+    "hyperviscosity_operator": "brookshaw",
     "model": "paper",
     "cornea": None,
     "limbus": "clamped",
@@ -163,13 +169,28 @@ CHOICE_DESCRIPTIONS = {
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
     "globe": "rigid chamber walls (paper) or compliant: the walls recede with Friedenwald's "
              "pressure-volume law (ocular_rigidity)",
+    "hyperviscosity_operator": "operator H of the hyperviscosity: brookshaw (L^3, the paper "
+                               "reproduction), consistent (K* L K on density and velocity, zero "
+                               "on linear fields at walls too) or consistent_velocity (K* L K on "
+                               "velocity, L^3 on density)",
     "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shell cornea, "
              "compliant globe, viscoelastic: ve_g 0.3, ve_tau 10 ms); explicit options override it",
-    "cornea": "membrane (the paper's Fung membrane) or shell (with bending rigidity "
-              "D = E0 h^3/(12 (1 - nu^2)))",
+    "cornea": "membrane (the paper's Fung membrane) or shell (the membrane with bending rigidity "
+              "D = E0 h^3/(12 (1 - nu^2)), Kirchhoff-Love, large rotations)",
     "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
               "rotate)",
 }
+
+
+
+def choice_default_text(name: str) -> str:
+    """The default of choice ``name`` in words: its value, or, for an option the ``model``
+    preset sets, what each preset gives (e.g. 'from model: membrane (paper), shell (clinical)')."""
+    if CHOICE_DEFAULTS[name] is not None:
+        return str(CHOICE_DEFAULTS[name])
+    return "from model: " + ", ".join(f"{preset[name]} ({m})" for m, preset in MODEL_PRESETS.items()
+                                      if name in preset)
+
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")
 
@@ -276,6 +297,7 @@ class RunParams:
     c_rule: str = CHOICE_DEFAULTS["c_rule"]
     jet_start: str = CHOICE_DEFAULTS["jet_start"]
     globe: str = CHOICE_DEFAULTS["globe"]
+    hyperviscosity_operator: str = CHOICE_DEFAULTS["hyperviscosity_operator"]
     model: str = CHOICE_DEFAULTS["model"]
     cornea: str | None = CHOICE_DEFAULTS["cornea"]
     limbus: str = CHOICE_DEFAULTS["limbus"]

@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from .params import CHOICES, PARAMETERS, RunParams
-from .version import __version__
 
 # metric name -> (unit, long name).  Missing metrics are NaN in arrays and None in JSON.
 METRICS: dict[str, tuple[str, str]] = {
@@ -108,6 +107,8 @@ class RunResult:
         """The CF-annotated ``xarray.Dataset`` of the run (docs/model.md section 7)."""
         import xarray as xr  # only here: the solver does not need xarray
 
+        from .dataset import global_attributes, time_coordinate
+
         data_vars = {}
         for name, (unit, long_name) in HISTORIES.items():
             data_vars[name] = xr.Variable(("time",), np.asarray(self.histories[name], float),
@@ -124,7 +125,7 @@ class RunResult:
             data_vars[name] = xr.Variable((), float(self.metrics.get(name, np.nan)), attrs)
 
         coords = {
-            "time": ("time", np.asarray(self.time, float), {"units": "ms", "long_name": "time"}),
+            "time": time_coordinate(self.time),
             "snapshot": ("snapshot", np.arange(len(SNAPSHOT_LABELS)),
                          {"long_name": "snapshot index"}),
             "snapshot_label": ("snapshot", np.array(SNAPSHOT_LABELS, dtype=object),
@@ -137,13 +138,10 @@ class RunResult:
             coords[name] = ((), float(getattr(p, name)),
                             {"units": spec.unit, "long_name": spec.description})
 
-        attrs = {
-            "Conventions": "CF-1.10",
-            "title": "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
-            "software": "airpuff",
-            "software_version": __version__,
-            "parameters_json": json.dumps(p.to_dict(), sort_keys=True),
-        }
+        attrs = global_attributes(
+            "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
+            f"simulate ({p.resolution} resolution, t_end {p.t_end:g} ms)")
+        attrs["parameters_json"] = json.dumps(p.to_dict(), sort_keys=True)
         for name in CHOICES:
             attrs[name] = getattr(p, name)
         for name, spec in PARAMETERS.items():

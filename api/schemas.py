@@ -22,6 +22,7 @@ from airpuff_core.params import (
     PRESET_PARAMETERS,
     SWEPT,
     ParamSpec,
+    choice_default_text,
 )
 from airpuff_core.result import METRICS
 from sweep.identification import DEFAULT_SIGMA, MEASURABLE, UNITS
@@ -69,7 +70,8 @@ def _choice_field(name: str) -> tuple[Any, Any]:
     allowed = CHOICES[name]
     return (Literal[allowed], Field(default=CHOICE_DEFAULTS[name],  # type: ignore[valid-type]
                                     description=f"{CHOICE_DESCRIPTIONS[name]}; one of "
-                                                + ", ".join(allowed)))
+                                                + ", ".join(allowed)
+                                                + f"; default {choice_default_text(name)}"))
 
 
 def _int_field(name: str) -> tuple[Any, Any]:

@@ -20,6 +20,7 @@ from airpuff_core.params import (
     PRESET_PARAMETERS,
     SWEPT,
     ParameterError,
+    choice_default_text,
 )
 
 from .html import esc
@@ -100,9 +101,9 @@ def _field(name: str, values: dict[str, str], errors: dict[str, list[str]], help
     if name in CHOICES:
         options = "".join(f'<option value="{esc(c)}"{" selected" if values.get(name) == c else ""}>'
                           f"{esc(c)}</option>" for c in CHOICES[name])
-        if CHOICE_DEFAULTS[name] is None:  # set by the model preset unless chosen
-            selected = " selected" if not values.get(name) else ""
-            options = f'<option value=""{selected}>from model</option>' + options
+        if CHOICE_DEFAULTS[name] is None:  # set by the model preset unless chosen: an empty
+            # value is left out of the request, so the preset applies
+            options = f'<option value="">{esc(choice_default_text(name))}</option>' + options
         control = (f'<select id="f-{esc(name)}" name="{esc(name)}"'
                    f"{invalid}>{options}</select>")
     else:
@@ -116,7 +117,7 @@ def _field(name: str, values: dict[str, str], errors: dict[str, list[str]], help
 
 def _help(name: str) -> str:
     if name in CHOICES:
-        return CHOICE_DESCRIPTIONS[name]
+        return f"{CHOICE_DESCRIPTIONS[name]}; default {choice_default_text(name)}"
     if name in INT_PARAMETERS:
         _, lo, hi, desc = INT_PARAMETERS[name]
         return f"{desc}; an integer in [{lo}, {hi}]"

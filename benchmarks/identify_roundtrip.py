@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from _study_common import run_variant  # noqa: E402
 
 from airpuff_core import RunParams  # noqa: E402
-from sweep.identify import IdentifyError, SweepTable, identify  # noqa: E402
+from sweep.identification import IdentifyError, SweepTable, identify  # noqa: E402
 
 TRUTHS = [(12.0, 0.4), (16.0, 0.4), (20.0, 0.4), (12.0, 0.6), (16.0, 0.6), (20.0, 0.6)]
 SUBSETS = {"P1,P2": ("P1", "P2"), "P1,P2,DA": ("P1", "P2", "DA"),

@@ -1,11 +1,13 @@
 """Wall time and solver figures of one default run (one core):
 
-    python benchmarks/run_default.py [resolution] [--repeat N]
+    python benchmarks/run_default.py [resolution] [--repeat N] [--operator OPERATOR]
 
 With ``--repeat N`` the run is made N times in this process (the Numba kernels compiled or loaded
 before the first) and the fastest and the median wall time are printed: this machine's speed
 varies by up to 20-30 % from minute to minute (other virtual machines on the host), so one
 timing alone can mislead.  The metrics are those of the last run (every run gives the same).
+``--operator`` times the run with another hyperviscosity operator (``hyperviscosity_operator``,
+docs/model.md section 4) at the default strength.
 """
 
 import argparse
@@ -14,6 +16,7 @@ import statistics
 import time
 
 from airpuff_core import RunParams, simulate
+from airpuff_core.params import CHOICE_DEFAULTS, CHOICES
 
 PAPER = {"P1": 21.96, "P2": 6.82, "CH": 15.14, "IOPg": 14.39, "IOPcc": 19.03, "t_A1": 8.35, "t_A2": 24.3}
 
@@ -51,14 +54,19 @@ def main(resolution="coarse", repeat=1, **overrides):
     return r
 
 
-def parse_timing_args(doc, resolution="coarse", repeat=1):
-    """``[resolution] [--repeat N]`` of the timing scripts."""
+def parse_timing_args(doc, resolution="coarse", repeat=1, operator=False):
+    """``[resolution] [--repeat N]`` of the timing scripts (and ``--operator``, the
+    hyperviscosity operator, with ``operator``)."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("resolution", nargs="?", default=resolution, choices=("coarse", "paper", "fine"))
     ap.add_argument("--repeat", type=int, default=repeat, help=f"runs to time (default {repeat})")
+    if operator:
+        ap.add_argument("--operator", default=CHOICE_DEFAULTS["hyperviscosity_operator"],
+                        choices=CHOICES["hyperviscosity_operator"],
+                        help="hyperviscosity operator (docs/model.md section 4)")
     return ap.parse_args()
 
 
 if __name__ == "__main__":
-    args = parse_timing_args(__doc__)
-    main(args.resolution, args.repeat)
+    args = parse_timing_args(__doc__, operator=True)
+    main(args.resolution, args.repeat, hyperviscosity_operator=args.operator)

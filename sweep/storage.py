@@ -46,11 +46,21 @@ NETCDF_MAGIC = (b"\x89HDF", b"CDF\x01", b"CDF\x02")
 
 
 # -- names ---------------------------------------------------------------------------------------
+# Run options added after points were first stored, with the value that reproduces the runs made
+# before them.  While an option holds that value it is left out of the key, so stored points keep
+# their keys; any other value enters the key.
+KEY_NEUTRAL = {"model": "paper", "cornea": "membrane", "limbus": "clamped",
+               "hyperviscosity_operator": "brookshaw", "globe": "rigid", "ocular_rigidity": 0.0126,
+               "ve_g": 0.0, "ve_tau": 10.0}
+
+
 def point_key(params) -> str:
     """Stable identifier of a parameter set (a ``RunParams``): first 16 hex digits of the
-    SHA-256 of the sorted JSON of ``params.to_dict()``.  Identical parameters give identical
-    keys in any process."""
-    text = json.dumps(params.to_dict(), sort_keys=True, separators=(",", ":"))
+    SHA-256 of the sorted JSON of ``params.to_dict()`` without the options of ``KEY_NEUTRAL``
+    that hold their neutral value.  Identical parameters give identical keys in any process."""
+    values = {k: v for k, v in params.to_dict().items()
+              if not (k in KEY_NEUTRAL and v == KEY_NEUTRAL[k])}
+    text = json.dumps(values, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

@@ -127,6 +127,8 @@ BAD = [
     ({"bogus": 1}, "bogus"),
     ({"options": {"t_end": 3}}, "options"),
     ({"R": 5.0, "r_post": 6.0}, "r_post"),  # cross-field: the support must lie inside the arc
+    ({"cornea": "plate"}, "cornea"),
+    ({"model": "clinic"}, "model"),
 ]
 
 
@@ -235,6 +237,8 @@ def test_openapi_documents_units_and_ranges(client):
             assert p["minItems"] == 1 and p["maxItems"] == MAX_POINTS
     for name, allowed in CHOICES.items():
         assert props[name]["enum"] == list(allowed)
+    assert "bending rigidity" in props["cornea"]["description"]
+    assert "from model: membrane (paper), shell (clinical)" in props["cornea"]["description"]
     record = schema["components"]["schemas"]["PointRecord"]["properties"]
     for name, (unit, _) in METRICS.items():
         assert f"[{unit}]" in record[name]["description"]

@@ -115,6 +115,22 @@ def test_a_good_form_makes_the_job_the_api_would(server, session):
     assert session.get(f"/jobs/{job_id}/figures/..%2F..%2Fairpuff.db.png").status_code == 404
 
 
+def test_the_cornea_follows_the_model_unless_chosen(server, session):
+    """The cornea's select offers 'from model' first, selected: left there, the form sends no
+    cornea and the model preset decides, as a POST /sweeps without the key does."""
+    page = session.get("/new")
+    assert ('<option value="">from model: membrane (paper), shell (clinical)</option>'
+            in page.text)
+    r = session.post("/new", data={"E0": "0.5", "model": "clinical", "cornea": "", "t_end": "2"})
+    assert r.status_code == 303
+    job_id = r.headers["location"].rsplit("/", 1)[1]
+    with server.client() as api:
+        job = api.get(f"/sweeps/{job_id}").json()
+        same = api.post("/sweeps", json={"E0": [0.5], "model": "clinical", "t_end": 2.0}).json()
+        twin = api.get(f"/sweeps/{same['id']}").json()
+    assert job["request"] == twin["request"]
+
+
 def test_every_page_needs_the_token(server):
     with httpx.Client(base_url=server.url, timeout=30) as anon:
         for path in ("/", "/new", "/jobs/x", "/jobs/x/figures/ora-P1.png"):

@@ -90,3 +90,25 @@ def test_demo_and_analysis_scripts_on_a_stored_sweep(tmp_path):
     with xr.open_dataset(out / "sweep.nc") as ds:
         png = plot_metrics_vs_iop(ds.load(), tmp_path / "m.png")
     assert png.stat().st_size > 10_000
+
+
+def test_sweep_with_the_shell_cornea_keys_and_records_it(tmp_path):
+    """`--cornea shell` reaches every point: its key (beside the membrane's, not over it), its
+    netCDF and the sweep's run options; `identify --refine` would rerun with it."""
+    from airpuff_core import RunParams
+
+    out = tmp_path / "shell"
+    args = ["--E0", "0.5", "--IOP", "16", "--resolution", "coarse", "--t-end", "0.5",
+            "--workers", "1", "--out", str(out), "--json"]
+    for cornea in ("shell", "membrane"):
+        run = subprocess.run(airpuff("sweep", *args, "--cornea", cornea), capture_output=True,
+                             text=True, timeout=600)
+        assert run.returncode == 0, run.stderr
+        assert json.loads(run.stdout)["computed"] == 1  # the membrane point is a new point
+    for cornea in ("shell", "membrane"):
+        params = RunParams(E0=0.5, IOP=16, resolution="coarse", t_end=0.5, cornea=cornea)
+        with xr.open_dataset(point_path(out / "points", point_key(params))) as ds:
+            assert ds.attrs["cornea"] == cornea
+            assert (ds.attrs["solver_bending_rigidity_N_m"] > 0) == (cornea == "shell")
+    with xr.open_dataset(out / "sweep.nc") as ds:
+        assert json.loads(ds.attrs["run_options_json"])["cornea"] == "membrane"  # the last one

@@ -11,8 +11,8 @@ import re
 import sys
 import time
 
-from airpuff_core.params import (CHOICE_DEFAULTS, CHOICE_DESCRIPTIONS, CHOICES, PARAMETERS, SWEPT,
-                                 RunParams)
+from airpuff_core.params import (CHOICE_DESCRIPTIONS, CHOICES, PARAMETERS, SWEPT, RunParams,
+                                 choice_default_text)
 
 # Options of `airpuff run` besides the four swept parameters (every other numeric parameter, so a
 # new one appears here by itself).  Flags are spelled with dashes.
@@ -44,7 +44,7 @@ def add_run_options(parser: argparse.ArgumentParser, swept: bool = True) -> None
     for name, allowed in CHOICES.items():
         text = CHOICE_DESCRIPTIONS[name].replace("%", "%%")  # argparse formats help with %
         parser.add_argument(flag(name), dest=name, default=None, metavar="|".join(allowed),
-                            help=f"{text} (default {CHOICE_DEFAULTS[name] or 'from --model'})")
+                            help=f"{text} (default {choice_default_text(name)})")
 
 
 def params_from_args(args: argparse.Namespace, **overrides) -> RunParams:
