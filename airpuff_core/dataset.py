@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import xarray as xr
 
+from .atomic import atomic_write
 from .params import RunParams
 
 
@@ -22,21 +22,11 @@ def params_from_dataset(ds: xr.Dataset) -> RunParams:
 
 
 def write_netcdf(ds: xr.Dataset, path: str | os.PathLike) -> Path:
-    """Write ``ds`` to ``path`` atomically: a temporary file in the same folder, then a rename.
+    """Write ``ds`` to ``path`` atomically (``atomic.atomic_write``: a temporary file in the same
+    folder, then a rename), floating-point arrays compressed.
 
     A reader never sees a half-written file, and a crash leaves at most a stray ``.tmp`` file.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        encoding = {v: {"zlib": True, "complevel": 4} for v in ds.data_vars
-                    if ds[v].dtype.kind == "f" and ds[v].ndim > 0}
-        ds.to_netcdf(tmp, engine="netcdf4", encoding=encoding)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    encoding = {v: {"zlib": True, "complevel": 4} for v in ds.data_vars
+                if ds[v].dtype.kind == "f" and ds[v].ndim > 0}
+    return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", encoding=encoding))
