@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .params import CHOICES, PARAMETERS, RunParams
-from .version import __version__
+from .provenance import provenance
 
 # metric name -> (unit, long name).  Missing metrics are NaN in arrays and None in JSON.
 METRICS: dict[str, tuple[str, str]] = {
@@ -123,7 +123,7 @@ class RunResult:
             "Conventions": "CF-1.10",
             "title": "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
             "software": "airpuff",
-            "software_version": __version__,
+            **provenance(),  # airpuff, model and library versions, git commit
             "parameters_json": json.dumps(p.to_dict(), sort_keys=True),
         }
         for name in CHOICES:
