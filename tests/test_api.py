@@ -35,12 +35,6 @@ def server(tmp_path_factory):
     s.stop()
 
 
-@pytest.fixture
-def client(server):
-    with server.client() as c:
-        yield c
-
-
 GOOD = {"E0": [0.4, 0.6], "IOP": [12.0, 16.0, 20.0], "thickness": [0.5], "pmax": [10.0],
         "resolution": "coarse", "t_end": 3.0}
 

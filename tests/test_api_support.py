@@ -7,6 +7,7 @@ behind.  It prints the address it listens on; the helper waits for ``/health``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -158,3 +159,22 @@ def wait_job(client: httpx.Client, job_id: str, until=("done", "failed", "cancel
         if time.monotonic() > deadline:
             raise AssertionError(f"job {job_id} still {job['status']} after {timeout} s: {job}")
         time.sleep(poll)
+
+
+@contextlib.contextmanager
+def running_server(data_dir: Path, *args: str):
+    """A server with its runner ready, stopped at the end (killed if the stop fails)."""
+    s = ServerProcess(data_dir, *args)
+    try:
+        s.start(wait_runner=True)
+        yield s
+    finally:
+        if s.proc is not None:
+            s.stop()
+
+
+def submit(client: httpx.Client, body: dict) -> str:
+    """POST a sweep; its job id (asserts a 202)."""
+    r = client.post("/sweeps", json=body)
+    assert r.status_code == 202, r.text
+    return r.json()["id"]

@@ -24,9 +24,9 @@ from airpuff_core.provenance import model_version
 from api.runner import INFRASTRUCTURE_RETRIES
 from sweep.storage import DAMAGED_SUBDIR, point_key, point_path
 try:  # tests/ may or may not be a package
-    from .test_api_support import REPO, ServerProcess, wait_job
+    from .test_api_support import REPO, ServerProcess, running_server, submit, wait_job
 except ImportError:
-    from test_api_support import REPO, ServerProcess, wait_job
+    from test_api_support import REPO, ServerProcess, running_server, submit, wait_job
 
 OPTIONS = {"resolution": "coarse", "t_end": 1.0}
 BASE = {"IOP": [15.0], "thickness": [0.5], "pmax": [10.0], **OPTIONS}
@@ -35,25 +35,8 @@ ABSOLUTE = re.compile(r"(?<![\w.~-])/(?:[^\s'\"/:]+/)+")
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    s = ServerProcess(tmp_path_factory.mktemp("reliable") / "data", "--workers", "2")
-    try:
-        s.start(wait_runner=True)
+    with running_server(tmp_path_factory.mktemp("reliable") / "data", "--workers", "2") as s:
         yield s
-    finally:
-        if s.proc is not None:
-            s.stop()
-
-
-@pytest.fixture
-def client(server):
-    with server.client() as c:
-        yield c
-
-
-def submit(client, body) -> str:
-    r = client.post("/sweeps", json=body)
-    assert r.status_code == 202, r.text
-    return r.json()["id"]
 
 
 def key_of(body: dict, E0: float) -> str:

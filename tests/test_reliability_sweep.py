@@ -19,9 +19,7 @@ import xarray as xr
 from airpuff_core import RunParams, SimulationError, simulate
 from airpuff_core.atomic import atomic_write
 from airpuff_core.provenance import LIBRARIES, model_version, model_version_of
-from sweep.cluster import close_client, make_client
 from sweep.grid import SweepSpec
-from sweep.numba_cache import shared_numba_cache_dir
 from sweep.runner import run_sweep
 from sweep.storage import DAMAGED_SUBDIR, failed_path, point_key, point_path
 
@@ -30,14 +28,8 @@ CORE = Path(__file__).resolve().parents[1] / "airpuff_core"
 
 
 @pytest.fixture(scope="module")
-def client():
-    shared_numba_cache_dir()
-    c = make_client(workers=2)
-    try:
-        c.wait_for_workers(2, timeout=120)
-        yield c
-    finally:
-        close_client(c)
+def client(dask_client):
+    return dask_client
 
 
 def damaged_records(points_dir: Path) -> list[dict]:
