@@ -52,6 +52,7 @@ import time
 import uuid
 from pathlib import Path
 
+from airpuff_core.provenance import model_version
 from sweep.storage import one_line_message
 
 from . import db
@@ -398,6 +399,10 @@ class Runner:
             if rec.get("key") != key:  # the workers run another version of airpuff
                 log.warning("point %s came back under key %s: do the workers run the same "
                             "airpuff version as this server?", key, rec.get("key"))
+            if rec.get("status") == "ok" and rec.get("model_version") != model_version():
+                raise RuntimeError(f"the worker runs model version {rec.get('model_version')}, "
+                                   f"this server {model_version()}: install the same airpuff "
+                                   "on the workers")
             return save_point(self.settings.points_dir, key, rec, data)
         except Exception as err:  # noqa: BLE001 - e.g. a full disk; a later job recomputes it
             from airpuff_core.result import METRICS

@@ -86,6 +86,7 @@ def _whole(name: str, text, low: int = 1) -> int:
 
 
 def sweep_command(args) -> int:
+    from sweep.combine import DamagedPointFiles
     from sweep.report import SweepProgress, summary_table
     from sweep.runner import run_sweep
 
@@ -102,7 +103,8 @@ def sweep_command(args) -> int:
     except KeyboardInterrupt:
         stopped = (130, f"interrupted; finished points are stored in {args.out}; "
                         "run the same command again to resume")
-    except (OSError, TimeoutError) as err:  # e.g. no scheduler at --scheduler, unwritable --out
+    except (OSError, TimeoutError, DamagedPointFiles) as err:
+        # e.g. no scheduler at --scheduler, unwritable --out, point files that stay unreadable
         stopped = (1, f"error: {' '.join(str(err).split())}")
     finally:
         if progress:
