@@ -209,20 +209,23 @@ def set_aside(points_dir: str | os.PathLike, key: str, path: Path, reason: str) 
     return target
 
 
-def open_point(points_dir: str | os.PathLike, key: str) -> xr.Dataset | None:
-    """The finished point ``key`` as a dataset read into memory, or None if it has no file, or
-    if its file cannot be read in full or was made by another model version: such a file is
-    moved aside (:func:`set_aside`) and the point counts as missing."""
+def open_point(points_dir: str | os.PathLike, key: str, full: bool = True) -> xr.Dataset | None:
+    """The finished point ``key`` as a dataset in memory, or None if it has no file, or if its
+    file cannot be read or was made by another model version: such a file is moved aside
+    (:func:`set_aside`) and the point counts as missing.  ``full``: read every variable (what
+    combining does; damage anywhere in the file shows); otherwise the metrics and attributes
+    only (a truncated or overwritten file shows already when it is opened), which is what
+    deciding to reuse a point costs for each point of a new sweep."""
     path = point_path(points_dir, key)
     if not path.is_file():  # nothing (or something that is not a file: it is not set aside)
         return None
     try:
         with xr.open_dataset(path, engine="netcdf4") as ds:
-            ds = ds.load()
+            missing = [name for name in METRICS if name not in ds]
+            if missing:
+                raise ValueError(f"no variable {missing[0]}")
+            ds = ds.load() if full else ds[list(METRICS)].load()
         json.loads(ds.attrs["parameters_json"])
-        missing = [name for name in METRICS if name not in ds]
-        if missing:
-            raise ValueError(f"no variable {missing[0]}")
     except Exception as err:  # noqa: BLE001 - any reason to distrust the file: set it aside
         set_aside(points_dir, key, path, f"unreadable: {type(err).__name__}: {err}")
         return None
@@ -238,7 +241,7 @@ def read_point(points_dir: str | os.PathLike, key: str) -> dict | None:
     """The stored record of a point (same fields as ``sweep.worker.run_point`` returns, minus the
     per-call ones), or None if the point has not been run or its file is unusable (moved aside by
     :func:`open_point`).  A finished point wins over a failure record."""
-    ds = open_point(points_dir, key)
+    ds = open_point(points_dir, key, full=False)
     if ds is not None:
         metrics = {name: float(ds[name].values) for name in METRICS}
         notes = {name: ds[name].attrs.get("comment", "") for name in METRICS}

@@ -37,7 +37,8 @@ def damaged_records(points_dir: Path) -> list[dict]:
 
 
 def test_unreadable_point_files_are_moved_aside_and_recomputed(client, tmp_path):
-    """Items 1 and 2: a truncated point file and a garbage failure record count as missing."""
+    """Items 1 and 2: a truncated point file and a garbage failure record count as missing, also
+    when the damage happens after the stored points were read (found when combining)."""
     spec = SweepSpec(E0=[0.4, 0.6], options=dict(SHORT)).validate()
     first = run_sweep(spec, tmp_path, client=client)
     assert (first.computed, first.failed) == (2, 0)
@@ -55,8 +56,17 @@ def test_unreadable_point_files_are_moved_aside_and_recomputed(client, tmp_path)
     truncated.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 64)  # garbage behind a valid magic
     resumed = run_sweep(spec, tmp_path, client=client)  # a plain resume
     assert (resumed.computed, resumed.reused, resumed.failed) == (1, 1, 0)
+
+    def damage_after_reading(record, counts):  # after the stored points were read, before combining
+        if record is None:
+            with open(point_path(points, k_garbage), "r+b") as fh:
+                fh.truncate(1000)
+
+    late = run_sweep(spec, tmp_path, client=client, progress=damage_after_reading)
+    assert (late.computed, late.reused, late.failed) == (1, 1, 0)
     records = damaged_records(points)
-    assert sorted(r["key"] for r in records) == sorted([k_truncated, k_garbage, k_truncated])
+    assert sorted(r["key"] for r in records) == sorted([k_truncated, k_garbage, k_truncated,
+                                                        k_garbage])
     assert all(r["reason"].startswith("unreadable") for r in records), records
     assert (points / DAMAGED_SUBDIR / records[0]["moved_to"]).exists()
     with xr.open_dataset(tmp_path / "sweep.nc") as ds:
