@@ -96,6 +96,26 @@ def test_damaged_point_files_are_set_aside_and_recomputed(client, server, tmp_pa
     assert job3["status"] == "done" and job3["points_reused"] == 2, job3
 
 
+def test_a_file_damaged_while_its_job_runs_is_recomputed_when_combining(client, server):
+    """Item 2: a stored point passes the check when its job starts, then its file is truncated
+    while the job's other points compute; combining finds it, sets it aside and computes it
+    again, and the job ends done."""
+    body = {**BASE, "IOP": [17.0], "E0": [0.4]}
+    assert wait_job(client, submit(client, body), timeout=240)["status"] == "done"
+    stored = point_path(server.data_dir / "points", key_of(body, 0.4))
+    job_id = submit(client, {**body, "E0": [0.4, 0.42, 0.44, 0.46, 0.48]})
+    running = wait_job(client, job_id, until=("running", "done", "failed"), poll=0.05)
+    assert running["status"] == "running" and running["points_done"] < 5, running
+    with open(stored, "r+b") as fh:
+        fh.truncate(1000)
+    job = wait_job(client, job_id, timeout=240)
+    assert job["status"] == "done" and job["points_done"] == 5, job
+    assert points_of(client, job_id)[0.4]["reused"] is False
+    moved = [json.loads(p.read_text())["key"]
+             for p in (server.data_dir / "points" / DAMAGED_SUBDIR).glob("*.json")]
+    assert key_of(body, 0.4) in moved
+
+
 def test_model_and_infrastructure_failures(client, server):
     """Item 6: a write error of the server (a directory where the point file goes: an OSError
     as from a full disk) is retried automatically, then recorded, and computed again by the
