@@ -1,7 +1,7 @@
 """The FastAPI application: settings, lifespan (the job runner), the checks before any route runs
 (token, body size, content type, encoding: ``RequestGuard``), error format.
 
-The routes are in ``api.routes``.
+The routes are in ``api.routes``, the browser pages in ``api.pages``.
 
 Long work never runs here.  ``POST /sweeps`` writes a job row (and its grid) to SQLite and answers
 202 with a Location; the job runner (``api.runner``, a thread that owns the Dask client) picks the
@@ -13,7 +13,6 @@ only the runner thread uses it).
 
 import logging
 import re
-import secrets
 import sqlite3
 from contextlib import asynccontextmanager
 
@@ -21,7 +20,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from fastapi.security import HTTPBearer
 from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -29,7 +28,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from airpuff_core import __version__
 from airpuff_core.params import PARAMETERS
 
-from . import db, routes, schemas
+from . import auth, db, pages, routes, schemas
 from .settings import Settings
 
 log = logging.getLogger("airpuff.api")
@@ -77,8 +76,11 @@ def _request_keys() -> list[str]:
 # secret -- the routes it describes still need the token).
 PUBLIC_PATHS = ("/health", "/docs", "/openapi.json")
 
-# Bodies of these media types are parsed; any other is refused with 415.
+# Bodies of these media types are parsed by the API; any other is refused with 415.
 JSON_MEDIA = re.compile(r"application/(?:[\w.+-]+\+)?json")
+
+# The body of the pages' forms (a browser's default encoding of a form).
+FORM_MEDIA = "application/x-www-form-urlencoded"
 
 # First bytes of JSON in UTF-16 or UTF-32 (byte order marks); any NUL byte gives those away too,
 # since JSON in UTF-8 has none.
@@ -97,33 +99,50 @@ def _problem(status_code: int, field: str, msg: str, typ: str,
 class RequestGuard:
     """What is checked before a route or a body parser runs, in this order:
 
-    1. the bearer token, when one is set (every path but ``PUBLIC_PATHS``): 401;
-    2. the body size, from Content-Length and as the body arrives: 413;
-    3. a body's content type, which must be JSON: 415 naming ``content-type``;
-    4. the body's encoding, which must be UTF-8 (no UTF-16/32): 422.
+    1. the credentials, when a token is set (every path but ``PUBLIC_PATHS`` and the pages'
+       ``pages.OPEN_PATHS``, the login and logout forms, which make their own checks):
 
-    The body is read here (at most ``limit`` bytes) and handed on unchanged.
+       - the API: the bearer token; with ``GET``/``HEAD`` the pages' session cookie will do too
+         (their links, images and refresh); else 401;
+       - the pages (``pages.is_page``): the session cookie; else a redirect to the login form;
+
+    2. the body size, from Content-Length and as the body arrives: 413;
+    3. a body's content type: JSON for the API, ``application/x-www-form-urlencoded`` for the
+       pages' forms (``pages.FORM_PATHS``); another one gets 415 naming ``content-type``;
+    4. the encoding: a charset other than UTF-8 gets 415, a JSON body in UTF-16/32 422.
+
+    The body is read here (at most ``limit`` bytes, after the credentials) and handed on unchanged.
+    The token and cookie comparisons are ``api.auth``'s.
     """
 
     def __init__(self, app, limit: int, token: str | None):
         self.app, self.limit = app, limit
-        self.expected = None if not token else token.encode()
+        self.token = token or None
 
-    def _authorised(self, headers: Headers) -> bool:
+    def _bearer_ok(self, headers: Headers) -> bool:
         scheme, _, credentials = headers.get("authorization", "").partition(" ")
-        return (scheme.lower() == "bearer"
-                and secrets.compare_digest(credentials.strip().encode(), self.expected))
+        return scheme.lower() == "bearer" and auth.token_matches(credentials.strip(), self.token)
+
+    def _refusal(self, scope) -> Response | None:
+        """The answer to a request without the credentials its path needs; None if it may go on."""
+        path = scope["path"]
+        if self.token is None or path in PUBLIC_PATHS or path in pages.OPEN_PATHS:
+            return None
+        request = Request(scope)  # headers and cookies only: the body is not read
+        if pages.is_page(path):
+            return None if auth.session_ok(request, self.token) else pages.login_redirect(request)
+        if self._bearer_ok(request.headers) or (scope["method"] in auth.SAFE_METHODS
+                                                and auth.session_ok(request, self.token)):
+            return None
+        return JSONResponse({"detail": "missing or wrong bearer token"}, 401,
+                            headers={"WWW-Authenticate": "Bearer"})
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         headers = Headers(scope=scope)
-        answer = None
-        if self.expected is not None and scope["path"] not in PUBLIC_PATHS \
-                and not self._authorised(headers):
-            answer = JSONResponse({"detail": "missing or wrong bearer token"}, 401,
-                                  headers={"WWW-Authenticate": "Bearer"})
-        elif not self._length_ok(headers.get("content-length")):
+        answer = self._refusal(scope)
+        if answer is None and not self._length_ok(headers.get("content-length")):
             answer = self._too_big()
         if answer is not None:
             return await answer(scope, receive, send)
@@ -140,7 +159,7 @@ class RequestGuard:
                 return await self._too_big()(scope, receive, send)
             if not message.get("more_body", False):
                 break
-        answer = self._check_body(headers, bytes(body))
+        answer = self._check_body(headers, bytes(body), form=scope["path"] in pages.FORM_PATHS)
         if answer is not None:
             return await answer(scope, receive, send)
         sent = False
@@ -166,22 +185,25 @@ class RequestGuard:
         return JSONResponse({"detail": f"request body above {self.limit} bytes"}, 413)
 
     @staticmethod
-    def _check_body(headers: Headers, body: bytes) -> JSONResponse | None:
+    def _check_body(headers: Headers, body: bytes, form: bool) -> JSONResponse | None:
+        """The content-type and encoding rules (3 and 4 above) for a non-empty body: JSON, or
+        with ``form`` the urlencoded fields of a page's form."""
         if not body:
             return None
         content_type = headers.get("content-type", "")
         media, _, rest = content_type.partition(";")
-        if not JSON_MEDIA.fullmatch(media.strip().lower()):
-            shown = media.strip() or "none"
+        media = media.strip()
+        accepted = FORM_MEDIA if form else "application/json (a JSON object in UTF-8)"
+        if not (media.lower() == FORM_MEDIA if form else JSON_MEDIA.fullmatch(media.lower())):
             return _problem(415, "content-type",
-                            f"content-type: {shown[:80]!r} is not accepted; accepted: "
-                            "application/json (a JSON object in UTF-8)", "content_type")
+                            f"content-type: {(media or 'none')[:80]!r} is not accepted; "
+                            f"accepted: {accepted}", "content_type")
         charset = re.search(r"charset\s*=\s*\"?([\w.-]+)", rest, re.IGNORECASE)
         if charset and charset.group(1).lower() not in ("utf-8", "utf8"):
             return _problem(415, "content-type",
                             f"content-type: charset {charset.group(1)[:40]!r} is not accepted; "
                             "accepted: utf-8", "content_type")
-        if body.startswith(WIDE_BOMS) or b"\x00" in body:
+        if not form and (body.startswith(WIDE_BOMS) or b"\x00" in body):
             return _problem(422, "body", "body: the JSON is not in UTF-8 (UTF-16 or UTF-32?); "
                                          "accepted: a JSON object in UTF-8", "json_invalid")
         return None
@@ -243,7 +265,7 @@ def create_app(settings: Settings) -> FastAPI:
 
                 await anyio.to_thread.run_sync(runner.stop)
 
-    auth = _bearer_scheme(settings)
+    bearer_scheme = _bearer_scheme(settings)
     app = FastAPI(
         title="airpuff",
         version=__version__,
@@ -254,7 +276,8 @@ def create_app(settings: Settings) -> FastAPI:
             "/sweeps/{id}/metrics and download the combined netCDF at /sweeps/{id}/dataset. "
             "Units and accepted ranges of every parameter are given in the request schema. "
             + ("Every endpoint except /health, /docs and /openapi.json needs "
-               "`Authorization: Bearer <token>`." if settings.token else "")),
+               "`Authorization: Bearer <token>` (for GET, the session cookie of the results "
+               "pages' login will do too)." if settings.token else "")),
         lifespan=lifespan, openapi_url=None, docs_url=None, redoc_url=None)
     app.state.settings = settings
     app.state.runner = None
@@ -282,5 +305,6 @@ def create_app(settings: Settings) -> FastAPI:
         return JSONResponse({"detail": "the job database is busy; retry shortly"}, 503,
                             headers={"Retry-After": "2"})
 
-    app.include_router(routes.build_router(settings, SweepRequest, auth))
+    app.include_router(routes.build_router(settings, SweepRequest, bearer_scheme))
+    app.include_router(pages.router(settings, _describe))
     return app

@@ -56,6 +56,7 @@ def job_or_404(con, job_id: str) -> sqlite3.Row:
 
 
 def job_info(row: sqlite3.Row) -> dict[str, Any]:
+    """A job row as ``GET /sweeps/{id}`` reports it (``schemas.JobInfo``)."""
     spec = json.loads(row["spec_json"])
     request = {name: spec[name] for name in SWEPT}
     request.update(spec.get("options", {}))
@@ -81,32 +82,41 @@ def health(request: Request):
             "runner_error": runner.error, "workers": runner.n_workers}
 
 
+def create_job(con: sqlite3.Connection, settings: Settings,
+               values: dict[str, Any]) -> tuple[str, int]:
+    """Store a queued job for the request ``values`` (a ``SweepRequest`` validated by the schema,
+    as a dict); returns (job id, number of points).  Raises a 422 if the grid is larger than
+    ``settings.max_points`` or the solver rejects a combination of parameters.  ``POST /sweeps``
+    and the pages' sweep form (``api.pages``) both submit through here."""
+    values = dict(values)
+    retry_failed = values.pop("retry_failed", False)
+    axes = {name: values.pop(name) for name in SWEPT}
+    try:
+        check_grid_size({name: len(axes[name]) for name in SWEPT}, settings.max_points)
+    except ParameterError as err:
+        raise problem_422(["body"], GRID_FIELD, str(err), "grid_too_large") from None
+    try:
+        spec = SweepSpec(**axes, options=values)
+        points = spec.validated_points()
+    except ParameterError as err:
+        raise problem_422(["body", err.name], err.name, str(err)) from None
+    job_id = uuid.uuid4().hex
+    rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
+    db.insert_job(con, job_id, spec.to_dict(), rows, retry_failed)
+    return job_id, len(rows)
+
+
 def make_submit(SweepRequest):  # noqa: N803 - a model class
     """The handler of ``POST /sweeps`` for the body model ``SweepRequest``."""
 
     def submit(body: SweepRequest, response: Response, request: Request,  # type: ignore[valid-type]
                con: sqlite3.Connection = Depends(get_db)):
-        settings = request.app.state.settings
-        values = body.model_dump()
-        retry_failed = values.pop("retry_failed")
-        axes = {name: values.pop(name) for name in SWEPT}
-        try:
-            check_grid_size({name: len(axes[name]) for name in SWEPT}, settings.max_points)
-        except ParameterError as err:
-            raise problem_422(["body"], GRID_FIELD, str(err), "grid_too_large") from None
-        try:
-            spec = SweepSpec(**axes, options=values)
-            points = spec.validated_points()
-        except ParameterError as err:
-            raise problem_422(["body", err.name], err.name, str(err)) from None
-        job_id = uuid.uuid4().hex
-        rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
-        db.insert_job(con, job_id, spec.to_dict(), rows, retry_failed)
+        job_id, n_points = create_job(con, request.app.state.settings, body.model_dump())
         runner = request.app.state.runner
         if runner is not None:
             runner.wake()
         response.headers["Location"] = f"/sweeps/{job_id}"
-        return {"id": job_id, "status": "queued", "points_total": len(rows)}
+        return {"id": job_id, "status": "queued", "points_total": n_points}
 
     return submit
 
@@ -124,8 +134,10 @@ def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
     return job_info(job_or_404(con, job_id))
 
 
-def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
-    row = job_or_404(con, job_id)
+def point_records(con: sqlite3.Connection, job_id: str) -> list[dict[str, Any]]:
+    """The points of a job as ``GET /sweeps/{id}/metrics`` reports them (``schemas.PointRecord``):
+    index, key, the four swept values, status, message, reused and every metric (None where
+    missing).  The pages (``api.pages``) show the same records."""
     points = []
     for p in db.job_points(con, job_id):
         rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
@@ -138,7 +150,13 @@ def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
         for name in METRICS:
             rec[name] = (m or {}).get(name)
         points.append(rec)
-    return {"id": job_id, "status": row["status"], "units": schemas.units(), "points": points}
+    return points
+
+
+def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
+    row = job_or_404(con, job_id)
+    return {"id": job_id, "status": row["status"], "units": schemas.units(),
+            "points": point_records(con, job_id)}
 
 
 def get_dataset(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):

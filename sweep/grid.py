@@ -86,6 +86,18 @@ def parse_axis(name: str, text: str) -> list[float]:
     (one-line message naming ``name`` and the accepted syntax or range) on any bad input,
     including an empty list and duplicate values.
     """
+    values = axis_values(name, text)
+    spec = PARAMETERS[name]
+    values = [spec.check(v) for v in values]
+    _check_unique(name, values)
+    return values
+
+
+def axis_values(name: str, text: str, max_num: int | None = None) -> list[float]:
+    """The numbers written in ``text`` (syntax of :func:`parse_axis`), not yet range-checked:
+    the web form (``api.sweep_form``) leaves ranges and duplicates to the request schema, so that
+    its messages are those of ``POST /sweeps``.  ``max_num`` caps ``num`` of start:stop:num before
+    any array is made.  Raises :class:`ParameterError` on bad syntax."""
     if name not in SWEPT:
         raise ParameterError("axis", name, "one of " + ", ".join(SWEPT))
     text = str(text).strip()
@@ -103,16 +115,13 @@ def parse_axis(name: str, text: str) -> list[float]:
             raise ParameterError(name, text, "start:stop:num with num a whole number >= 1") from None
         if num < 1 or (num == 1 and start != stop):
             raise ParameterError(name, text, "start:stop:num with num >= 2 (num = 1 only if start = stop)")
-        values = [_round(v) for v in np.linspace(start, stop, num)]
-    else:
-        tokens = [t.strip() for t in text.split(",")]
-        if any(t == "" for t in tokens):
-            raise ParameterError(name, text, AXIS_SYNTAX)
-        values = [_round(_number(name, t, text)) for t in tokens]
-    spec = PARAMETERS[name]
-    values = [spec.check(v) for v in values]
-    _check_unique(name, values)
-    return values
+        if max_num is not None and num > max_num:
+            raise ParameterError(name, text, f"start:stop:num with num at most {max_num}")
+        return [_round(v) for v in np.linspace(start, stop, num)]
+    tokens = [t.strip() for t in text.split(",")]
+    if any(t == "" for t in tokens):
+        raise ParameterError(name, text, AXIS_SYNTAX)
+    return [_round(_number(name, t, text)) for t in tokens]
 
 
 def _check_unique(name: str, values: list[float]) -> None:

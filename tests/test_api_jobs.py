@@ -18,9 +18,9 @@ from airpuff_core.params import RunParams
 from airpuff_core.result import METRICS
 from sweep.storage import failed_path, point_key, point_path
 try:  # tests/ may or may not be a package
-    from .test_api_support import running_server, submit, wait_job
+    from .test_api_support import ServerProcess, submit, wait_job
 except ImportError:
-    from test_api_support import running_server, submit, wait_job
+    from test_api_support import ServerProcess, submit, wait_job
 
 # Short coarse runs: about a second or two of solver time per point.
 OPTIONS = {"resolution": "coarse", "t_end": 1.0}
@@ -28,7 +28,8 @@ OPTIONS = {"resolution": "coarse", "t_end": 1.0}
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    with running_server(tmp_path_factory.mktemp("jobs") / "data", "--workers", "2") as s:
+    with ServerProcess(tmp_path_factory.mktemp("jobs") / "data", "--workers", "2").running(
+            wait_runner=True) as s:
         yield s
 
 

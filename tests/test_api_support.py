@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Iterator
 
 import httpx
 
@@ -72,6 +73,15 @@ class ServerProcess:
                     raise AssertionError("server not healthy:\n" + self.log_text()[-3000:])
                 time.sleep(0.2)
         return self
+
+    @contextlib.contextmanager
+    def running(self, **start_options) -> Iterator["ServerProcess"]:
+        """The started server for the length of a ``with`` block (a module fixture's life)."""
+        try:
+            yield self.start(**start_options)
+        finally:
+            if self.proc is not None:
+                self.stop()
 
     def _check_alive(self) -> None:
         if self.proc is not None and self.proc.poll() is not None:
@@ -159,18 +169,6 @@ def wait_job(client: httpx.Client, job_id: str, until=("done", "failed", "cancel
         if time.monotonic() > deadline:
             raise AssertionError(f"job {job_id} still {job['status']} after {timeout} s: {job}")
         time.sleep(poll)
-
-
-@contextlib.contextmanager
-def running_server(data_dir: Path, *args: str):
-    """A server with its runner ready, stopped at the end (killed if the stop fails)."""
-    s = ServerProcess(data_dir, *args)
-    try:
-        s.start(wait_runner=True)
-        yield s
-    finally:
-        if s.proc is not None:
-            s.stop()
 
 
 def submit(client: httpx.Client, body: dict) -> str:

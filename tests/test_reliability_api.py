@@ -24,9 +24,9 @@ from airpuff_core.provenance import model_version
 from api.runner import INFRASTRUCTURE_RETRIES
 from sweep.storage import DAMAGED_SUBDIR, point_key, point_path
 try:  # tests/ may or may not be a package
-    from .test_api_support import REPO, ServerProcess, running_server, submit, wait_job
+    from .test_api_support import REPO, ServerProcess, submit, wait_job
 except ImportError:
-    from test_api_support import REPO, ServerProcess, running_server, submit, wait_job
+    from test_api_support import REPO, ServerProcess, submit, wait_job
 
 OPTIONS = {"resolution": "coarse", "t_end": 1.0}
 BASE = {"IOP": [15.0], "thickness": [0.5], "pmax": [10.0], **OPTIONS}
@@ -35,7 +35,8 @@ ABSOLUTE = re.compile(r"(?<![\w.~-])/(?:[^\s'\"/:]+/)+")
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    with running_server(tmp_path_factory.mktemp("reliable") / "data", "--workers", "2") as s:
+    with ServerProcess(tmp_path_factory.mktemp("reliable") / "data", "--workers", "2").running(
+            wait_runner=True) as s:
         yield s
 
 
