@@ -10,8 +10,9 @@ t^{n+1} = t^n + dt in three parts, each a method:
        v^{n+1}     = v^n - dt/rho^{n+1/2} grad^{n+1/2} p^{n+1/2} + dt mu/rho^n visc^n(v^n)
                      + dt HV(v^n)
        x^{n+1}     = x^{n+1/2} + dt/2 v^{n+1}
-   for the nodes that are not on the cornea; HV(f) = gamma c h^5 L^3 f is the stabilising
-   hyperviscosity (L the Brookshaw Laplacian, docs/model.md section 4).
+   for the nodes that are not on the cornea; HV(f) = gamma c h^5 H f is the stabilising
+   hyperviscosity, H = L^3 (L the Brookshaw Laplacian; the default) or K^* L K (K its linearly
+   consistent form) by the option ``hyperviscosity_operator`` (docs/model.md section 4).
 2. ``couple``, the Dirichlet-Neumann iterations k = 1, 2, ... (docs/model.md section 5):
    (a) advance the cornea from its state at t^n with the interface pressure interpolated from
        p^n to the current estimate p^k (plus the jet), by Verlet sub-steps;
@@ -45,6 +46,14 @@ HV_SAFETY = 1.4
 HV_POWER_ITERATIONS = 2  # power iterations per refresh, warm-started (the mode changes slowly)
 HV_REFRESH_STEPS = 4  # steps between refreshes (nodes move < 1 % of a spacing in between)
 HV_MARGIN = 1.1  # a warm-started power iteration may underestimate the radius slightly
+# dt <= VISCOUS_SAFETY rho h_min^2 / mu: the viscous term is forward Euler in the mid-point scheme.
+# Its measured limit on the MFPM operator (eigenvalues of the axisymmetric viscous matrix,
+# ``stability.forward_euler_viscous_limit``) is 0.547 (v_x) / 0.579 (v_y) at coarse and paper
+# resolution.  0.2 keeps a margin of 2.7 for nodes that the flow pushes together (nearest-neighbour
+# spacing down to 0.69 h), and keeps the time error small where the limit sets the step: halving
+# the step at mu = 2.5 Pa s moves CH by 0.011 mmHg (0.042 with the consistent hyperviscosity;
+# docs/model.md section 4).
+VISCOUS_SAFETY = 0.2
 P_REF = 1.0  # Pa: floor of the normalisation of the coupling residual (meaningful at rest)
 BLOWUP_SPEED = 50.0  # m/s: a fluid speed above this is a blow-up (physical speeds ~0.2-1 m/s)
 BLOWUP_DENSITY = 0.2  # relative density change beyond which the run is declared blown up
@@ -102,17 +111,28 @@ class CoupledModel:
         self.h_min = float(ch.h.min())
         self.hv_scale_unit = ch.h ** 5  # HV scale per unit gamma c
         self.neighbours = NeighbourTable(ch.h, KAPPA)
+        # H = L^3 or K^* L K on each field (docs/model.md section 4)
+        operator = params.hyperviscosity_operator
+        self.hv_consistent_density = operator == "consistent"
+        self.hv_consistent_velocity = operator in ("consistent", "consistent_velocity")
         # operators at t^n (its Brookshaw lists serve the hyperviscosity), t^{n+1/2}, t^{n+1}
-        self.ops_n = Operators(ch.h, ch.area, KAPPA, self.neighbours)
+        # (ops_new becomes ops_n at the end of a step)
+        self.ops_n = Operators(ch.h, ch.area, KAPPA, self.neighbours,
+                               consistent=self.hv_consistent_velocity)
         self.ops_half = Operators(ch.h, ch.area, KAPPA, self.neighbours)
-        self.ops_new = Operators(ch.h, ch.area, KAPPA, self.neighbours)
+        self.ops_new = Operators(ch.h, ch.area, KAPPA, self.neighbours,
+                                 consistent=self.hv_consistent_velocity)
         self._velocity = np.empty((2, n))  # (v_x, v_y) stacked for the MFPM kernel
         self.dv = np.zeros((2, n, 5))  # derivative vectors of v_x (dv[0]) and v_y (dv[1])
         self.div = np.zeros(n)
         self._velocity_derivatives(self.ops_n, self.x, self.y, self.vx, self.vy, self.dv,
                                    self.div, laplacian=True)
-        self.hv_radius_unit, self.hv_mode = self.ops_n.hyperviscous_spectral_radius(
-            self.hv_scale_unit)
+        # the hyperviscosity's stability limit is its stiffer operator's, each with its own
+        # warm-started stiffest mode
+        self._hv_consistent = sorted({self.hv_consistent_density, self.hv_consistent_velocity})
+        self.hv_modes = {}
+        self.hv_radius_unit = max(self._hv_spectral_radius(k, None, 60)
+                                  for k in self._hv_consistent)
         self.hv_radius_max = self.hv_radius_unit
         self._hv_age = 0
         self.c = sound_speed(params.c_rule, si.c0, si.c_slope, 0.0, 0.0)
@@ -138,6 +158,7 @@ class CoupledModel:
         self.last_substeps = 0
         self.last_hv_substeps = 0
         self.dt_hyperviscous = math.inf  # s, stability limit of the hyperviscosity (time_step)
+        self.dt_limits = {}  # s: the acoustic, viscous and hyperviscous limits of the last step
         self.max_cond = float(self.ops_n.cond.max())
 
     def _start_cornea_at_rest(self):
@@ -160,16 +181,22 @@ class CoupledModel:
 
     # -- time step --------------------------------------------------------------------------
     def time_step(self):
-        """dt [s] from the acoustic CFL condition; also refreshes the hyperviscosity's stability
-        limit ``dt_hyperviscous``, which the predictor meets by sub-cycling."""
+        """dt [s] from the acoustic CFL condition, dt <= cfl h_min / (c + v_max), and the viscous
+        limit, dt <= VISCOUS_SAFETY rho_min h_min^2 / mu; also refreshes the hyperviscosity's
+        stability limit ``dt_hyperviscous``, which the predictor meets by sub-cycling.  The three
+        limits are kept in ``dt_limits`` [s]."""
         si = self.si
         vmax = max_speed(self.vx, self.vy)
         dt_acoustic = si.cfl * self.h_min / (self.c + vmax)
+        dt_viscous = (VISCOUS_SAFETY * float(self.rho.min()) * self.h_min ** 2 / si.mu
+                      if si.mu > 0 else math.inf)
         self.dt_hyperviscous = self._hyperviscous_limit()
-        return dt_acoustic
+        self.dt_limits = {"acoustic": dt_acoustic, "viscous": dt_viscous,
+                          "hyperviscous": self.dt_hyperviscous}
+        return min(dt_acoustic, dt_viscous)
 
     def _hyperviscous_limit(self):
-        """Largest stable forward-Euler step [s] of the hyperviscosity gamma c h^5 L^3."""
+        """Largest stable forward-Euler step [s] of the hyperviscosity gamma c h^5 H."""
         gamma = self.si.hyperviscosity
         if gamma <= 0:
             return math.inf
@@ -177,10 +204,18 @@ class CoupledModel:
         self._hv_age += 1
         if self._hv_age >= HV_REFRESH_STEPS:
             self._hv_age = 0
-            self.hv_radius_unit, self.hv_mode = self.ops_n.hyperviscous_spectral_radius(
-                self.hv_scale_unit, self.hv_mode, HV_POWER_ITERATIONS)
+            self.hv_radius_unit = max(
+                self._hv_spectral_radius(k, self.hv_modes[k], HV_POWER_ITERATIONS)
+                for k in self._hv_consistent)
             self.hv_radius_max = max(self.hv_radius_max, self.hv_radius_unit)
         return HV_SAFETY / (gamma * self.c * self.hv_radius_unit * HV_MARGIN)
+
+    def _hv_spectral_radius(self, consistent, start, iterations):
+        """Spectral radius of h^5 H (H = K^* L K if ``consistent``, else L^3) [1/s per c], by
+        power iteration from ``start``; keeps the mode for the next refresh."""
+        radius, self.hv_modes[consistent] = self.ops_n.hyperviscous_spectral_radius(
+            self.hv_scale_unit, start, iterations, consistent)
+        return radius
 
     def _velocity_derivatives(self, ops, x, y, vx, vy, dv, div, nodes=None, laplacian=False,
                               time_ms=None):
@@ -249,7 +284,8 @@ class CoupledModel:
         n_hv = max(1, int(math.ceil(dt / self.dt_hyperviscous)))
         self.last_hv_substeps = n_hv
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
-                                     *self.ops_n.laplacian_args(), scale, dt, n_hv,
+                                     *self.ops_n.hyperviscosity_args(), self.hv_consistent_density,
+                                     self.hv_consistent_velocity, scale, dt, n_hv,
                                      self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])
         w["hv_rho"] /= dt
         w["hv_vx"] /= dt

@@ -1,19 +1,61 @@
-"""netCDF files of runs: atomic writing, and the parameters a file was made with.
+"""netCDF files: atomic writing, the parameters a file was made with, and the CF attributes every
+file of the project shares (run, sweep point, ``sweep.nc``).
 
-The dataset itself is made by ``RunResult.to_dataset`` (``result.py``); its run parameters are
-scalar coordinates and global attributes, the full set as the JSON attribute ``parameters_json``.
+The run's dataset itself is made by ``RunResult.to_dataset`` (``result.py``); its run parameters
+are scalar coordinates and global attributes, the full set as the JSON attribute
+``parameters_json``.
+
+CF-1.10 (checked with the IOOS compliance-checker, ``benchmarks/cf_check.py``): a coordinate named
+``time`` is a CF time coordinate, so its units are ``ms since <reference>``.  The simulated puff has
+no calendar date: the reference instant ``TIME_REFERENCE`` stands for t = 0, the start of the run.
+xarray would decode such a coordinate into dates; ``open_dataset`` keeps it in milliseconds.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from datetime import datetime, timezone
 from pathlib import Path
 
+import numpy as np
 import xarray as xr
 
 from .atomic import atomic_write
 from .params import RunParams
+from .version import __version__
+
+CONVENTIONS = "CF-1.10"
+TIME_REFERENCE = "1970-01-01 00:00:00"  # stands for t = 0: a simulation has no calendar date
+TIME_UNITS = f"ms since {TIME_REFERENCE}"
+
+
+def time_coordinate(values_ms) -> tuple:
+    """The ``time`` coordinate [ms since the start of the run], as CF-1.10 wants a time axis:
+    standard_name ``time``, axis ``T``, units ``ms since <reference>`` and a calendar (the
+    writer adds no _FillValue to it, ``write_netcdf``)."""
+    return ("time", np.asarray(values_ms, float),
+            {"units": TIME_UNITS, "calendar": "proleptic_gregorian", "standard_name": "time",
+             "axis": "T", "long_name": "time since the start of the run (the reference date "
+                                       "stands for t = 0)"})
+
+
+def history_entry(action: str) -> str:
+    """One line of the CF ``history`` attribute: UTC time stamp, software and version, action."""
+    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return f"{stamp} airpuff {__version__}: {action}"
+
+
+def global_attributes(title: str, action: str) -> dict:
+    """The global attributes every file of the project carries (CF-1.10 and provenance)."""
+    return {"Conventions": CONVENTIONS, "title": title, "software": "airpuff",
+            "software_version": __version__, "history": history_entry(action)}
+
+
+def open_dataset(path: str | os.PathLike, **kwargs) -> xr.Dataset:
+    """``xarray.open_dataset`` for the project's files, with ``time`` kept as numbers [ms]
+    (not decoded into dates from its CF reference)."""
+    return xr.open_dataset(path, decode_times=False, **kwargs)
 
 
 def params_from_dataset(ds: xr.Dataset) -> RunParams:
@@ -29,4 +71,6 @@ def write_netcdf(ds: xr.Dataset, path: str | os.PathLike) -> Path:
     """
     encoding = {v: {"zlib": True, "complevel": 4} for v in ds.data_vars
                 if ds[v].dtype.kind == "f" and ds[v].ndim > 0}
+    # CF 2.5.1: a coordinate variable has no missing values, so no _FillValue
+    encoding.update({c: {"_FillValue": None} for c in ds.dims if c in ds.coords})
     return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", encoding=encoding))

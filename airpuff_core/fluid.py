@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import SimulationError
 from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
-from .kernels.neighbours import build_neighbours, max_squared_move
+from .kernels.neighbours import AXIS_EPS, build_neighbours, max_squared_move
 
 KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
 MAX_NEIGHBOURS = 128
@@ -82,10 +82,12 @@ class Operators:
     """MFPM derivatives at given positions, and the Brookshaw Laplacian of the last full build with
     ``laplacian=True``, on a shared neighbour table."""
 
-    def __init__(self, h, area, kappa, table: NeighbourTable | None = None):
+    def __init__(self, h, area, kappa, table: NeighbourTable | None = None, consistent=False):
         """h: node spacing [m], area: node area in the meridian plane [m^2], kappa: support
         radius / spacing; ``table``: a neighbour table to share (searched with the same h and
-        kappa, which the operators then take from it)."""
+        kappa, which the operators then take from it); ``consistent``: also keep the linearly
+        consistent Laplacian's coefficients with the Brookshaw lists (for the hyperviscosity
+        K^* L K; they cost about a third of the build)."""
         if table is None:
             table = NeighbourTable(h, kappa)
         elif table.kappa != kappa or table.h.shape != h.shape or not np.array_equal(table.h, h):
@@ -104,6 +106,12 @@ class Operators:
         self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.uint32)
         self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
+        self.consistent = consistent
+        self.lap_c = np.zeros(n * MAX_NEIGHBOURS if consistent else 0)
+        # the weight of the inner product in which the Brookshaw Laplacian is self-adjoint: the
+        # node area, halved on the axis (an off-axis node stands for itself and its mirror
+        # image, a node on the axis only for itself)
+        self.adjoint_weight = area.copy()
         self.cond = np.zeros(n)  # 1-norm condition number of each node's scaled moment matrix
         self.all_nodes = np.arange(n)
         self._no_fields = np.zeros((0, n))
@@ -140,9 +148,11 @@ class Operators:
             self.start[:] = t.start
         status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
                                   t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
-                                  self.count, self.nbr, self.mirrored, self.lap_b, laplacian)
+                                  self.count, self.nbr, self.mirrored, self.lap_b, self.lap_c,
+                                  laplacian, laplacian and self.consistent)
         if laplacian:
             self.has_laplacian = True
+            np.multiply(self.area, np.where(x < AXIS_EPS, 0.5, 1.0), out=self.adjoint_weight)
         if status:
             i = status - 1
             raise SimulationError(
@@ -164,14 +174,25 @@ class Operators:
             raise RuntimeError("no Brookshaw pair lists: build with laplacian=True first")
         return self.start, self.nbr, self.mirrored, self.count, self.lap_b
 
-    def hyperviscous(self, f, parity, scale, work1, work2, out):
-        hyperviscous_term(f, parity, *self.laplacian_args(), scale, work1, work2, out)
+    def hyperviscosity_args(self):
+        """(start, nbr, mirrored, count, lap_b, lap_c, weight) for the hyperviscosity kernels."""
+        return (*self.laplacian_args(), self.lap_c, self.adjoint_weight)
+
+    def hyperviscous(self, f, parity, scale, work1, work2, out, consistent=False):
+        """out = scale * H f, the hyperviscous term with H = L^3, or K^* L K if ``consistent``
+        (``kernels.mfpm.hyperviscous_term``)."""
+        if consistent and not self.consistent:
+            raise ValueError("K^* L K needs operators built with consistent=True")
+        hyperviscous_term(f, parity, *self.hyperviscosity_args(), consistent, scale, work1, work2,
+                          out)
         return out
 
-    def hyperviscous_spectral_radius(self, scale, start=None, iterations=60):
-        """Largest |eigenvalue| of f -> scale * L^3 f by power iteration, and its eigenvector.
+    def hyperviscous_spectral_radius(self, scale, start=None, iterations=60, consistent=False):
+        """Largest |eigenvalue| of f -> scale * H f (H = L^3, or K^* L K if ``consistent``) by
+        power iteration, and its eigenvector.
 
-        L has real non-positive eigenvalues, so this converges to the stiffest grid mode.  Nodes
+        Either operator is self-adjoint and negative semi-definite in the area-weighted inner
+        product (real non-positive eigenvalues), so this converges to the stiffest grid mode.  Nodes
         that the flow pushes together raise it, so the solver re-runs a few iterations every step
         from the previous eigenvector (``start``).
         """
@@ -181,7 +202,7 @@ class Operators:
         w1, w2, out = np.empty_like(f), np.empty_like(f), np.empty_like(f)
         lam = 0.0
         for _ in range(iterations):
-            self.hyperviscous(f, 1.0, scale, w1, w2, out)
+            self.hyperviscous(f, 1.0, scale, w1, w2, out, consistent)
             lam = np.linalg.norm(out)
             f = out / lam
         return lam, f

@@ -104,7 +104,7 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("pmax", "kPa", 10.0, 0.0, 50.0, "peak air-jet pressure", low_inc=True),
         _p("R", "mm", 7.0, 3.0, 15.0, "radius of the corneal arc"),
         _p("r_post", "mm", 2.04, 0.5, 10.0, "radius of the rigid posterior support (sector geometry)"),
-        _p("alpha0", "deg", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True),
+        _p("alpha0", "degree", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True),
         _p("rho_cornea", "kg/m^3", 1000.0, 100.0, 5000.0, "density of the cornea"),
         _p("rho_fluid", "kg/m^3", 1000.0, 100.0, 5000.0, "reference density of the aqueous humour"),
         _p("mu", "Pa s", 7.5e-4, 0.0, 10.0, "viscosity of the aqueous humour", low_inc=True),
@@ -121,7 +121,11 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("coupling_tol", "1", 1e-4, 0.0, 0.1, "Dirichlet-Neumann tolerance, eq. (6)"),
         _p("t_end", "ms", 35.0, 0.0, 10000.0, "simulated time"),
         _p("hyperviscosity", "1", 0.15, 0.0, 10.0,
-           "strength gamma of the stabilising hyperviscosity gamma c h^5 L^3 (0 switches it off)",
+           "strength gamma of the stabilising hyperviscosity gamma c h^5 H (0 switches it off; "
+           "H from hyperviscosity_operator). Smallest stable strength at coarse / paper "
+           "resolution: brookshaw 0.025-0.05 / 0.05-0.075 (jet runs), consistent 0.094-0.103 / "
+           "0.0625-0.075, consistent_velocity 0.041-0.053 / at most 0.125 (docs/model.md "
+           "section 4)",
            low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
         _p("cfl", "1", 0.6, 0.0, 0.6,
@@ -135,6 +139,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "layout": ("isotropic", "polar"),
     "c_rule": ("running_max", "per_step", "fixed"),
     "jet_start": ("as_written", "equilibrium"),
+    "hyperviscosity_operator": ("brookshaw", "consistent", "consistent_velocity"),
 }
 CHOICE_DEFAULTS = {
     "resolution": "coarse",
@@ -142,6 +147,7 @@ CHOICE_DEFAULTS = {
     "layout": "isotropic",
     "c_rule": "running_max",
     "jet_start": "as_written",
+    "hyperviscosity_operator": "brookshaw",
 }
 CHOICE_DESCRIPTIONS = {
     "resolution": "node count: coarse (~300 fluid nodes), paper (~1100), fine (~4500)",
@@ -149,6 +155,10 @@ CHOICE_DESCRIPTIONS = {
     "layout": "fluid node layout: isotropic rings or the paper's polar lattice",
     "c_rule": "sound-speed rule: running_max of v_max, per_step (paper), or fixed c = c0",
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
+    "hyperviscosity_operator": "operator H of the hyperviscosity: brookshaw (L^3, the paper "
+                               "reproduction), consistent (K* L K on density and velocity, zero "
+                               "on linear fields at walls too) or consistent_velocity (K* L K on "
+                               "velocity, L^3 on density)",
 }
 
 SWEPT = ("E0", "IOP", "thickness", "pmax")
@@ -249,6 +259,7 @@ class RunParams:
     layout: str = CHOICE_DEFAULTS["layout"]
     c_rule: str = CHOICE_DEFAULTS["c_rule"]
     jet_start: str = CHOICE_DEFAULTS["jet_start"]
+    hyperviscosity_operator: str = CHOICE_DEFAULTS["hyperviscosity_operator"]
     max_coupling_iterations: int = INT_PARAMETERS["max_coupling_iterations"][0]
     extra: dict = field(default_factory=dict, compare=False, repr=False)
 

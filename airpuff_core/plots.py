@@ -17,7 +17,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import xarray as xr  # noqa: E402
+
+from .dataset import open_dataset  # noqa: E402
 
 FIGURES = ("apex_and_jet.png", "hysteresis.png", "applanation.png", "shapes.png")
 
@@ -146,7 +147,7 @@ def plot_run(nc_path, out_dir) -> list[Path]:
     """Write the four figures of a run's netCDF into ``out_dir``; return their paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with xr.open_dataset(nc_path) as ds:
+    with open_dataset(nc_path) as ds:
         ds = ds.load()
     paths = []
     for name, fn in zip(FIGURES, (plot_apex_and_jet, plot_hysteresis, plot_applanation, plot_shapes)):

@@ -82,6 +82,7 @@ class Recorder:
         self.dts = []
         self.substeps = []
         self.hv_substeps = []
+        self.viscous_limited_steps = 0  # steps whose dt the viscous limit set
         self.max_residual = 0.0
         self._volume0 = first["chamber_volume"]  # mm^3
         self._density_volume0 = model.density_volume()
@@ -97,6 +98,7 @@ class Recorder:
         self.dts.append(dt)
         self.substeps.append(model.last_substeps)
         self.hv_substeps.append(model.last_hv_substeps)
+        self.viscous_limited_steps += model.dt_limits["viscous"] < model.dt_limits["acoustic"]
         self.max_residual = max(self.max_residual, model.last_residual)
         cur = probe(model)
         t = model.t
@@ -192,4 +194,5 @@ class Recorder:
             "neighbour_searches": model.neighbours.searches,
             "apex_fit_nodes": model.n_apex_fit,
             "acoustic_cfl": model.si.cfl,
+            "viscous_limited_steps": int(self.viscous_limited_steps),
         }

@@ -90,6 +90,8 @@ class RunResult:
         """The CF-annotated ``xarray.Dataset`` of the run (docs/model.md section 7)."""
         import xarray as xr  # only here: the solver does not need xarray
 
+        from .dataset import global_attributes, time_coordinate
+
         data_vars = {}
         for name, (unit, long_name) in HISTORIES.items():
             data_vars[name] = xr.Variable(("time",), np.asarray(self.histories[name], float),
@@ -106,7 +108,7 @@ class RunResult:
             data_vars[name] = xr.Variable((), float(self.metrics.get(name, np.nan)), attrs)
 
         coords = {
-            "time": ("time", np.asarray(self.time, float), {"units": "ms", "long_name": "time"}),
+            "time": time_coordinate(self.time),
             "snapshot": ("snapshot", np.arange(len(SNAPSHOT_LABELS)),
                          {"long_name": "snapshot index"}),
             "snapshot_label": ("snapshot", np.array(SNAPSHOT_LABELS, dtype=object),
@@ -119,13 +121,11 @@ class RunResult:
             coords[name] = ((), float(getattr(p, name)),
                             {"units": spec.unit, "long_name": spec.description})
 
-        attrs = {
-            "Conventions": "CF-1.10",
-            "title": "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
-            "software": "airpuff",
-            **provenance(),  # airpuff, model and library versions, git commit
-            "parameters_json": json.dumps(p.to_dict(), sort_keys=True),
-        }
+        attrs = global_attributes(
+            "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
+            f"simulate ({p.resolution} resolution, t_end {p.t_end:g} ms)")
+        attrs.update(provenance())  # airpuff, model and library versions, git commit
+        attrs["parameters_json"] = json.dumps(p.to_dict(), sort_keys=True)
         for name in CHOICES:
             attrs[name] = getattr(p, name)
         for name, spec in PARAMETERS.items():

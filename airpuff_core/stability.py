@@ -52,7 +52,7 @@ def _pack(model, dofs):
 def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, eps_v=1e-6,
                     eps_x=1e-9) -> StabilityReport:
     """Eigenvalues of the linearised one-step map about rest, with pmax forced to 0."""
-    params = params.replace(pmax=0.0, c_rule="fixed", coupling_tol=1e-10,
+    params = params.replace(pmax=0.0, c_rule="fixed", coupling_tol=1e-9,
                             max_coupling_iterations=200)
     model = CoupledModel(params)
     if dt is None:
@@ -90,3 +90,57 @@ def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, ep
     s = np.concatenate([np.full(len(idx), scale[name]) for name, idx in dofs])
     J = J * s[None, :] / s[:, None]
     return StabilityReport(np.linalg.eigvals(J), dt, n)
+
+
+def viscous_operator(params: RunParams, component: str) -> tuple[np.ndarray, float]:
+    """The discrete viscous operator of the momentum equation at the rest state, as a matrix.
+
+    Row i, column j: the viscous term of ``component`` ('vx' or 'vy') at node i for a unit
+    velocity at node j [1/m^2], over the nodes that integrate that component (v_x: INTERIOR;
+    v_y: INTERIOR and AXIS; the others carry Dirichlet values, zero here):
+
+        v_x: f_xx + f_yy + f_x/x - f/x^2,   v_y: f_xx + f_yy + f_x/x  (2 f_xx + f_yy on the axis),
+
+    with the MFPM derivatives of the solver (mirror images across the axis included).  Returns
+    the matrix and the smallest node spacing h_min [m].
+    """
+    model = CoupledModel(params)
+    kind = model.kind
+    if component == "vx":
+        nodes, parity = np.flatnonzero(kind == INTERIOR), -1.0
+    elif component == "vy":
+        nodes, parity = np.flatnonzero((kind == INTERIOR) | (kind == AXIS)), 1.0
+    else:
+        raise ValueError("component must be 'vx' or 'vy'")
+    n = model.chamber.n
+    M = np.empty((nodes.size, nodes.size))
+    x = model.x
+    on_axis = kind[nodes] == AXIS
+    xi = np.where(on_axis, 1.0, x[nodes])
+    chunk = 256
+    for c0 in range(0, nodes.size, chunk):
+        cols = nodes[c0:c0 + chunk]
+        fields = np.zeros((cols.size, n))
+        fields[np.arange(cols.size), cols] = 1.0
+        out = np.zeros((cols.size, n, 5))
+        model.ops_n.derivatives(x, model.y, fields, np.full(cols.size, parity), out)
+        d = out[:, nodes, :]  # (column, row node, derivative)
+        lap = d[..., 2] + d[..., 4] + d[..., 0] / xi
+        lap = np.where(on_axis, 2.0 * d[..., 2] + d[..., 4], lap)
+        if component == "vx":
+            lap -= fields[:, nodes] / xi ** 2
+        M[:, c0:c0 + cols.size] = lap.T
+    return M, model.h_min
+
+
+def forward_euler_viscous_limit(M: np.ndarray, h_min: float) -> tuple[float, int]:
+    """The forward-Euler stability limit of dv/dt = nu M v, as C = nu dt_max / h_min^2.
+
+    |1 + nu dt lambda| <= 1 for every eigenvalue lambda = a + ib of M (a < 0) means
+    nu dt <= -2 a / |lambda|^2.  Returns C and the number of eigenvalues with a >= 0 (a mode that
+    forward Euler cannot damp at any step; expected 0).
+    """
+    lam = np.linalg.eigvals(M)
+    damped = lam.real < 0
+    limit = float(np.min(-2.0 * lam.real[damped] / np.abs(lam[damped]) ** 2))
+    return limit / h_min ** 2, int(np.count_nonzero(~damped))

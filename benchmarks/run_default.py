@@ -1,11 +1,13 @@
 """Wall time and solver figures of one default run (one core):
 
-    python benchmarks/run_default.py [resolution] [--repeat N]
+    python benchmarks/run_default.py [resolution] [--repeat N] [--operator OPERATOR]
 
 With ``--repeat N`` the run is made N times in this process (the Numba kernels compiled or loaded
 before the first) and the fastest and the median wall time are printed: this machine's speed
 varies by up to 20-30 % from minute to minute (other virtual machines on the host), so one
 timing alone can mislead.  The metrics are those of the last run (every run gives the same).
+``--operator`` times the run with another hyperviscosity operator (``hyperviscosity_operator``,
+docs/model.md section 4) at the default strength.
 """
 
 import argparse
@@ -14,6 +16,7 @@ import statistics
 import time
 
 from airpuff_core import RunParams, simulate
+from airpuff_core.params import CHOICE_DEFAULTS, CHOICES
 
 PAPER = {"P1": 21.96, "P2": 6.82, "CH": 15.14, "IOPg": 14.39, "IOPcc": 19.03, "t_A1": 8.35, "t_A2": 24.3}
 
@@ -55,5 +58,8 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("resolution", nargs="?", default="coarse", choices=("coarse", "paper", "fine"))
     ap.add_argument("--repeat", type=int, default=1, help="runs to time (default 1)")
+    ap.add_argument("--operator", default=CHOICE_DEFAULTS["hyperviscosity_operator"],
+                    choices=CHOICES["hyperviscosity_operator"],
+                    help="hyperviscosity operator (docs/model.md section 4)")
     args = ap.parse_args()
-    main(args.resolution, args.repeat)
+    main(args.resolution, args.repeat, hyperviscosity_operator=args.operator)

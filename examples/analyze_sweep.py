@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     out = args.out or args.sweep_nc.with_name("sensitivity.png")
 
-    ds = xr.open_dataset(args.sweep_nc).load()
+    ds = xr.open_dataset(args.sweep_nc, decode_times=False).load()  # time in ms (CF time axis)
     n_ok = int((ds["status"] == "ok").sum())
     print(f"{args.sweep_nc}: {ds.sizes['E0']} x {ds.sizes['IOP']} x {ds.sizes['thickness']} x "
           f"{ds.sizes['pmax']} points, {n_ok} ok; resolution {ds.attrs.get('param_resolution')}")

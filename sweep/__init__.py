@@ -12,7 +12,7 @@ Python::
 
     spec = SweepSpec(E0=[0.3, 0.5], IOP=[12, 16, 20], options={"resolution": "coarse"})
     outcome = run_sweep(spec, "results")          # -> results/sweep.nc
-    xarray.open_dataset(outcome.path)["CH"].sel(E0=0.5)
+    xarray.open_dataset(outcome.path, decode_times=False)["CH"].sel(E0=0.5)
 
 One module, one job:
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +30,7 @@ import numpy as np
 import xarray as xr
 
 from airpuff_core.atomic import remove_stale_temp_files
+from airpuff_core.dataset import global_attributes, time_coordinate
 from airpuff_core.params import PARAMETERS, SWEPT
 from airpuff_core.provenance import PROVENANCE_ATTRS, provenance
 from airpuff_core.result import HISTORIES, METRICS
@@ -203,7 +203,7 @@ def _coords(spec, time_axis: np.ndarray) -> dict[str, Any]:
         p = PARAMETERS[name]
         coords[name] = (name, np.asarray(getattr(spec, name), float),
                         {"units": p.unit, "long_name": p.description})
-    coords["time"] = ("time", time_axis, {"units": "ms", "long_name": "time"})
+    coords["time"] = time_coordinate(time_axis)
     for name, value in spec.run_options().items():
         if name in PARAMETERS:  # numeric options as scalar coordinates, as in a per-run file
             coords[name] = ((), float(value), {"units": PARAMETERS[name].unit,
@@ -215,12 +215,11 @@ def _attrs(spec, grid: _Grid, point_files: str) -> dict[str, Any]:
     options = spec.run_options()
     n_ok = int((grid.status == "ok").sum())
     n_failed = int((grid.status == "failed").sum())
-    attrs: dict[str, Any] = {
-        "Conventions": "CF-1.10",
-        "title": "airpuff parameter sweep: corneal air-puff test over E0, IOP, thickness, pmax",
-        "software": "airpuff",
-        **provenance(),  # of the combining process; each point's own: variable provenance
-        "history": time_stamp() + " combined by sweep.combine from per-point files",
+    attrs: dict[str, Any] = global_attributes(
+        "airpuff parameter sweep: corneal air-puff test over E0, IOP, thickness, pmax",
+        "combined by sweep.combine from per-point files")
+    attrs.update(provenance())  # of the combining process; each point's own: variable provenance
+    attrs.update({
         "sweep_json": json.dumps(spec.to_dict(), sort_keys=True),
         "run_options_json": json.dumps(options, sort_keys=True),
         "n_points": spec.n_points,
@@ -228,11 +227,8 @@ def _attrs(spec, grid: _Grid, point_files: str) -> dict[str, Any]:
         "n_failed": n_failed,
         "n_missing": spec.n_points - n_ok - n_failed,
         "point_files": str(Path(point_files) / "<point_key>.nc"),
-    }
+    })
     for name, value in options.items():
         attrs[f"param_{name}"] = value
     return attrs
 
-
-def time_stamp() -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%S%z")

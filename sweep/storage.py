@@ -45,6 +45,7 @@ from typing import Any
 import xarray as xr
 
 from airpuff_core.atomic import atomic_write
+from airpuff_core.dataset import open_dataset
 from airpuff_core.provenance import model_version
 from airpuff_core.result import METRICS
 
@@ -220,7 +221,7 @@ def open_point(points_dir: str | os.PathLike, key: str, full: bool = True) -> xr
     if not path.is_file():  # nothing (or something that is not a file: it is not set aside)
         return None
     try:
-        with xr.open_dataset(path, engine="netcdf4") as ds:
+        with open_dataset(path, engine="netcdf4") as ds:
             missing = [name for name in METRICS if name not in ds]
             if missing:
                 raise ValueError(f"no variable {missing[0]}")

@@ -17,8 +17,8 @@ import sys
 import time
 
 import pytest
-import xarray as xr
 
+from airpuff_core.dataset import open_dataset
 from airpuff_core.params import MAX_HISTORY_INTERVALS, RunParams
 from airpuff_core.provenance import model_version
 from api.runner import INFRASTRUCTURE_RETRIES
@@ -86,7 +86,7 @@ def test_damaged_point_files_are_set_aside_and_recomputed(client, server, tmp_pa
     assert r.status_code == 200
     path = tmp_path / "sweep.nc"
     path.write_bytes(r.content)
-    with xr.open_dataset(path) as ds:
+    with open_dataset(path) as ds:
         assert list(ds["status"].values.ravel()) == ["ok"] * 3
         assert set(ds["model_version"].values.ravel()) == {model_version()}
         assert json.loads(str(ds["provenance"].values.ravel()[0]))["dask_version"]

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import xarray as xr
 
 from airpuff_core import RunParams, SimulationError, simulate
 from airpuff_core.atomic import atomic_write
+from airpuff_core.dataset import open_dataset
 from airpuff_core.provenance import LIBRARIES, model_version, model_version_of
 from sweep.grid import SweepSpec
 from sweep.runner import run_sweep
@@ -69,7 +69,7 @@ def test_unreadable_point_files_are_moved_aside_and_recomputed(client, tmp_path)
                                                         k_garbage])
     assert all(r["reason"].startswith("unreadable") for r in records), records
     assert (points / DAMAGED_SUBDIR / records[0]["moved_to"]).exists()
-    with xr.open_dataset(tmp_path / "sweep.nc") as ds:
+    with open_dataset(tmp_path / "sweep.nc") as ds:
         assert list(ds["status"].values.ravel()) == ["ok", "ok"]
         assert np.isfinite(ds["DA"].values).all()
 
@@ -103,7 +103,7 @@ def test_a_stored_point_of_another_model_version_is_not_reused(client, tmp_path)
     points = tmp_path / "points"
     key = point_key(spec.points()[0])
     path = point_path(points, key)
-    with xr.open_dataset(path) as ds:
+    with open_dataset(path) as ds:
         ds = ds.load()
     true_da = float(ds["DA"])
     for name in ("software_version", "model_version", "git_commit"):
@@ -119,7 +119,7 @@ def test_a_stored_point_of_another_model_version_is_not_reused(client, tmp_path)
     assert (again.computed, again.reused) == (1, 1)
     (record,) = damaged_records(points)
     assert record["key"] == key and "0ld0ld0ld0ld" in record["reason"]
-    with xr.open_dataset(tmp_path / "sweep.nc") as combined:
+    with open_dataset(tmp_path / "sweep.nc") as combined:
         da = combined["DA"].sel(IOP=14.0).squeeze()
         assert float(da) == pytest.approx(true_da, rel=1e-9, abs=0) and float(da) != 9.99
         assert set(combined["model_version"].values.ravel()) == {model_version()}

@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 import pytest
-import xarray as xr
 
 from airpuff_core import RunParams, SimulationError, simulate, solver
+from airpuff_core.dataset import open_dataset
 from airpuff_core.params import PARAMETERS
 from airpuff_core.result import HISTORIES, METRICS, SNAPSHOT_FIELDS
 
@@ -37,7 +37,7 @@ def test_both_applanations_and_metric_definitions(coarse_run):
 
 def test_netcdf_contract(coarse_run):
     m, path = coarse_run
-    ds = xr.open_dataset(path)
+    ds = open_dataset(path)
     assert ds.attrs["Conventions"] == "CF-1.10"
     assert "software_version" in ds.attrs
     for name, (unit, _) in {**HISTORIES, **METRICS}.items():
@@ -67,7 +67,7 @@ def test_conservation(coarse_run):
     """Mass is the sum of fixed particle masses: rho_f times the exact chamber volume.  The volume
     implied by the density field follows the geometric chamber volume."""
     _, path = coarse_run
-    ds = xr.open_dataset(path)
+    ds = open_dataset(path)
     R, r, a = 7e-3, 2.04e-3, math.radians(60)
     exact_volume = 2 * math.pi / 3 * (R ** 3 - r ** 3) * (1 - math.cos(a))
     assert ds.attrs["solver_mass_kg"] == pytest.approx(1000.0 * exact_volume, rel=1e-12)
@@ -82,7 +82,7 @@ def test_apex_balance_at_applanation(coarse_run):
     P = p_fluid + rho_c h a_inward (Imbert-Fick plus the apex's inertia, docs/reproduction.md section 5).
     The acceleration is taken from the stored velocity history, independently of the solver."""
     m, path = coarse_run
-    ds = xr.open_dataset(path)
+    ds = open_dataset(path)
     t = ds.time.values * 1e-3
     accel = np.gradient(ds.apex_velocity.values, t)  # m/s^2, inward
     rho_h = 1000.0 * 0.5e-3  # kg/m^2

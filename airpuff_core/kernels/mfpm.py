@@ -121,8 +121,8 @@ LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCA
 
 @njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
-                     cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_b,
-                     store_laplacian):
+                     cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_b, lap_c,
+                     store_laplacian, store_consistent):
     """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
     to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
     or only (f_x, f_y) when ``out`` has two columns.
@@ -154,7 +154,11 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
     b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in
     lap_*[start[i] ... start[i] + lap_count[i] - 1], for ``brookshaw_laplacian`` and the
-    hyperviscosity.
+    hyperviscosity, and with them (``store_consistent`` too) the coefficients of the linearly
+    consistent Laplacian
+    c_ij = b_ij - m_i . g_ij (see ``consistent_laplacian``): m_i = sum_j b_ij (x_j - x_i) is the
+    first moment of the Brookshaw weights (zero on a full symmetric support, not at a wall) and
+    g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).
 
     Returns 0, or i+1 for the first node whose matrix is singular or worse than ``cond_max``.
     """
@@ -281,6 +285,23 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
                                  i43, i44))
         if not (cond[i] < cond_max) and status == 0:
             status = i + 1
+        if store_consistent:
+            # c_k = b_k - m . g_k with the first moment m = s sum_k b_k (u_k, v_k) and the
+            # gradient weights g_k = (1/s) (A^-1 P_k)[0:2] W_k: the spacing scale s cancels
+            mx = 0.0
+            my = 0.0
+            for k in range(m):
+                mx += lap_b[p0 + k] * u_k[k]
+                my += lap_b[p0 + k] * v_k[k]
+            for k in range(m):
+                u = u_k[k]
+                v = v_k[k]
+                q2 = 0.5 * u * u
+                q3 = u * v
+                q4 = 0.5 * v * v
+                gx = (i00 * u + i10 * v + i20 * q2 + i30 * q3 + i40 * q4) * w_k[k]
+                gy = (i10 * u + i11 * v + i21 * q2 + i31 * q3 + i41 * q4) * w_k[k]
+                lap_c[p0 + k] = lap_b[p0 + k] - (mx * gx + my * gy)
         # 4. each field's moment vector b, then D f = S A^-1 b
         s1 = inv_s
         s2 = inv_s * inv_s
@@ -311,7 +332,8 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
 
 @njit(cache=True)
 def brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, out):
-    """out_i = sum_j b_ij (f_j - f_i): the sign-definite SPH Laplacian."""
+    """out_i = sum_j b_ij (f_j - f_i): the sign-definite SPH Laplacian (or, with the coefficients
+    c_ij, the consistent Laplacian K of ``hyperviscous_term``)."""
     n = f.shape[0]
     for i in range(n):
         acc = 0.0
@@ -324,23 +346,58 @@ def brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, out):
 
 
 @njit(cache=True)
-def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, scale, work1, work2, out):
-    """out_i = scale_i (L^3 f)_i, with L the Brookshaw Laplacian (scale_i = gamma c h_i^5).
+def pair_operator_adjoint(f, parity, start, nbr, mirrored, count, coef, area, out):
+    """out = A^-1 K^T A f: the adjoint, in the weighted inner product <f, g> = sum_i A_i f_i g_i
+    (``area`` = A: the node areas, halved on the axis, where the Brookshaw Laplacian is
+    self-adjoint), of the pair operator (K f)_i = sum_j c_ij (f_j - f_i) that
+    ``brookshaw_laplacian`` applies with the coefficients c (an image j carries parity f_j)."""
+    n = f.shape[0]
+    for i in range(n):
+        out[i] = 0.0
+    for i in range(n):
+        af = area[i] * f[i]
+        diagonal = 0.0
+        for k in range(start[i], start[i] + count[i]):
+            c = coef[k]
+            diagonal += c
+            out[nbr[k]] += (parity * c if mirrored[k] else c) * af
+        out[i] -= diagonal * af
+    for i in range(n):
+        out[i] /= area[i]
 
-    L^3 is negative semi-definite, so adding ``out`` to df/dt damps the grid-scale modes most
-    (eigenvalues of L^3 grow like k^6) and the resolved flow very little.
+
+@njit(cache=True)
+def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area, consistent,
+                      scale, work1, work2, out):
+    """out_i = scale_i (H f)_i (scale_i = gamma c h_i^5), with H = L^3 (``consistent`` False: the
+    paper-reproduction operator) or H = K^* L K (``consistent`` True): L the Brookshaw Laplacian,
+    K the linearly consistent Laplacian (coefficients ``lap_c``), K^* its adjoint.
+
+    L^3 is negative semi-definite, but a truncated support at a wall or the cornea makes L f != 0
+    for a linear f there.  K f = 0 for every linear f, at boundary nodes too, so K^* L K
+    annihilates linear fields.  With the weight A of ``pair_operator_adjoint`` (node areas,
+    halved on the axis), A L is symmetric and negative semi-definite (for an odd field on the
+    subspace where it vanishes on the axis), so A K^* L K = K^T (A L) K is too.  Either H damps
+    and never amplifies, and acts mostly on grid-scale modes (eigenvalues grow like k^6).
     """
-    brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, work1)
-    brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
-    brookshaw_laplacian(work2, parity, start, nbr, mirrored, count, lap_b, out)
+    if consistent:
+        brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_c, work1)
+        brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
+        pair_operator_adjoint(work2, parity, start, nbr, mirrored, count, lap_c, area, out)
+    else:
+        brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, work1)
+        brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
+        brookshaw_laplacian(work2, parity, start, nbr, mirrored, count, lap_b, out)
     for i in range(f.shape[0]):
         out[i] *= scale[i]
 
 
 @njit(cache=True)
-def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, out_vx, out_vy):
-    """The Brookshaw Laplacian of the three flow fields in one pass over the pairs (rho and v_y
-    even in x, v_x odd): each field's sum is the one ``brookshaw_laplacian`` forms."""
+def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, coef_rho, coef_v, out_rho, out_vx,
+                    out_vy):
+    """The pair operator of coefficients ``coef_rho`` on rho and ``coef_v`` on v (each Brookshaw's
+    ``lap_b`` or the consistent ``lap_c``) on the three flow fields in one pass over the pairs
+    (rho and v_y even in x, v_x odd): each field's sum is the one ``brookshaw_laplacian`` forms."""
     for i in range(rho.shape[0]):
         acc_r = 0.0
         acc_x = 0.0
@@ -350,9 +407,9 @@ def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, ou
         yi = vy[i]
         for k in range(start[i], start[i] + count[i]):
             j = nbr[k]
-            b = lap_b[k]
+            b = coef_v[k]
             xj = -vx[j] if mirrored[k] else vx[j]
-            acc_r += b * (rho[j] - ri)
+            acc_r += coef_rho[k] * (rho[j] - ri)
             acc_x += b * (xj - xi)
             acc_y += b * (vy[j] - yi)
         out_rho[i] = acc_r
@@ -361,10 +418,51 @@ def _brookshaw_flow(rho, vx, vy, start, nbr, mirrored, count, lap_b, out_rho, ou
 
 
 @njit(cache=True)
+def _adjoint_flow(rho, vx, vy, start, nbr, mirrored, count, coef, area, with_density, out_rho,
+                  out_vx, out_vy):
+    """``pair_operator_adjoint`` of v_x (odd in x) and v_y (even), and with ``with_density`` of
+    rho (even; otherwise ``out_rho`` is left alone), in one pass over the pairs."""
+    n = rho.shape[0]
+    for i in range(n):
+        out_vx[i] = 0.0
+        out_vy[i] = 0.0
+        if with_density:
+            out_rho[i] = 0.0
+    for i in range(n):
+        a = area[i]
+        ar = a * rho[i]
+        ax = a * vx[i]
+        ay = a * vy[i]
+        diagonal = 0.0
+        for k in range(start[i], start[i] + count[i]):
+            j = nbr[k]
+            c = coef[k]
+            diagonal += c
+            if with_density:
+                out_rho[j] += c * ar
+            out_vx[j] += -c * ax if mirrored[k] else c * ax
+            out_vy[j] += c * ay
+        if with_density:
+            out_rho[i] -= diagonal * ar
+        out_vx[i] -= diagonal * ax
+        out_vy[i] -= diagonal * ay
+    for i in range(n):
+        inv_a = 1.0 / area[i]
+        if with_density:
+            out_rho[i] *= inv_a
+        out_vx[i] *= inv_a
+        out_vy[i] *= inv_a
+
+
+@njit(cache=True)
 def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, mirrored, count,
-                                 lap_b, scale, dt, n_sub, work, out_rho, out_vx, out_vy):
-    """Change of rho, v_x and v_y over dt under d f/dt = scale L^3 f, by n_sub explicit Euler
-    sub-steps: out_f = g(dt) - f with g(0) = f.
+                                 lap_b, lap_c, area, consistent_density, consistent_velocity,
+                                 scale, dt, n_sub, work, out_rho, out_vx, out_vy):
+    """Change of rho, v_x and v_y over dt under d f/dt = scale H f, by n_sub explicit Euler
+    sub-steps: out_f = g(dt) - f with g(0) = f.  H is K^* L K on the density with
+    ``consistent_density`` and on the velocity with ``consistent_velocity``, L^3 otherwise (see
+    ``hyperviscous_term``).  ``consistent_density`` requires ``consistent_velocity`` (the
+    operators ``consistent`` and ``consistent_velocity`` of docs/model.md section 4).
 
     Nodes with ``pinned_vx`` / ``pinned_vy`` keep their velocity component (Dirichlet nodes: walls,
     the cornea, v_x on the axis); no density is pinned.  Sub-cycling keeps dt/n_sub within the
@@ -381,9 +479,18 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
         g_x[i] = vx[i]
         g_y[i] = vy[i]
     for _ in range(n_sub):
-        _brookshaw_flow(g_r, g_x, g_y, start, nbr, mirrored, count, lap_b, a_r, a_x, a_y)
-        _brookshaw_flow(a_r, a_x, a_y, start, nbr, mirrored, count, lap_b, b_r, b_x, b_y)
-        _brookshaw_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_b, a_r, a_x, a_y)
+        _brookshaw_flow(g_r, g_x, g_y, start, nbr, mirrored, count,
+                        lap_c if consistent_density else lap_b,
+                        lap_c if consistent_velocity else lap_b, a_r, a_x, a_y)
+        _brookshaw_flow(a_r, a_x, a_y, start, nbr, mirrored, count, lap_b, lap_b, b_r, b_x, b_y)
+        if consistent_velocity:
+            _adjoint_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_c, area,
+                          consistent_density, a_r, a_x, a_y)
+            if not consistent_density:
+                brookshaw_laplacian(b_r, 1.0, start, nbr, mirrored, count, lap_b, a_r)
+        else:
+            _brookshaw_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_b, lap_b, a_r, a_x,
+                            a_y)
         for i in range(n):
             s = scale[i]
             g_r[i] += h * (a_r[i] * s)
