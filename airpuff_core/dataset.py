@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
+from .atomic import atomic_write
 from .params import RunParams
 from .version import __version__
 
@@ -64,23 +64,13 @@ def params_from_dataset(ds: xr.Dataset) -> RunParams:
 
 
 def write_netcdf(ds: xr.Dataset, path: str | os.PathLike) -> Path:
-    """Write ``ds`` to ``path`` atomically: a temporary file in the same folder, then a rename.
+    """Write ``ds`` to ``path`` atomically (``atomic.atomic_write``: a temporary file in the same
+    folder, then a rename), floating-point arrays compressed.
 
     A reader never sees a half-written file, and a crash leaves at most a stray ``.tmp`` file.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        encoding = {v: {"zlib": True, "complevel": 4} for v in ds.data_vars
-                    if ds[v].dtype.kind == "f" and ds[v].ndim > 0}
-        # CF 2.5.1: a coordinate variable has no missing values, so no _FillValue
-        encoding.update({c: {"_FillValue": None} for c in ds.dims if c in ds.coords})
-        ds.to_netcdf(tmp, engine="netcdf4", encoding=encoding)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    encoding = {v: {"zlib": True, "complevel": 4} for v in ds.data_vars
+                if ds[v].dtype.kind == "f" and ds[v].ndim > 0}
+    # CF 2.5.1: a coordinate variable has no missing values, so no _FillValue
+    encoding.update({c: {"_FillValue": None} for c in ds.dims if c in ds.coords})
+    return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", encoding=encoding))

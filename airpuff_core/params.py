@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -20,6 +21,24 @@ import numpy as np
 
 MMHG_PA = 133.322  # Pa per mmHg
 UL_M3 = 1e-9  # m^3 per microlitre
+
+# The time histories hold t_end / output_interval + 1 samples of every history; more than this
+# many intervals cost minutes and gigabytes for one run (3e6 samples: 48 s, 0.5 GB).
+MAX_HISTORY_INTERVALS = 100_000
+
+# A number written as text (command line, form): optional sign, digits with an optional decimal
+# point, optional exponent.  Stricter than float(), which also takes "1_0" (as 10), "1_000",
+# "infinity" and "nan".
+DECIMAL = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+
+
+def parse_decimal(text: str) -> float:
+    """The float written in ``text`` (surrounding white space allowed), in the plain decimal
+    syntax of ``DECIMAL``; raises ValueError otherwise."""
+    if not DECIMAL.fullmatch(text.strip()):
+        raise ValueError(f"not a decimal number: {text!r}")
+    return float(text)
+
 
 # The prestretch lambda0 that balances the IOP is sought below this (docs/model.md section 3); a
 # cornea that needs more is too soft for the membrane model.
@@ -70,7 +89,7 @@ class ParamSpec:
         if isinstance(value, bool):
             raise ParameterError(self.name, value, self.accepted())
         try:
-            x = float(value)
+            x = parse_decimal(value) if isinstance(value, str) else float(value)
         except (TypeError, ValueError):
             raise ParameterError(self.name, value, self.accepted()) from None
         if not math.isfinite(x):
@@ -357,6 +376,12 @@ class RunParams:
         if self.layout == "polar" and self.geometry != "sector":
             raise ParameterError("layout", self.layout,
                                  "isotropic with geometry cap (the polar lattice is a sector's)")
+        if self.t_end / self.output_interval > MAX_HISTORY_INTERVALS:
+            raise ParameterError(
+                "output_interval", self.output_interval,
+                f"{PARAMETERS['output_interval'].accepted()} with t_end / output_interval at most "
+                f"{MAX_HISTORY_INTERVALS} samples of the histories (t_end={self.t_end:g} ms gives "
+                f"{self.t_end / self.output_interval:.3g}; raise output_interval or lower t_end)")
         if not self.E0 * 1e6 * self.thickness * 1e-3 > 0.0:
             # the membrane stiffness E0 h [N/m] of the solver would underflow to 0
             raise ParameterError("thickness", self.thickness,

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from .params import CHOICES, PARAMETERS, RunParams
+from .provenance import provenance
 
 # metric name -> (unit, long name).  Missing metrics are NaN in arrays and None in JSON.
 METRICS: dict[str, tuple[str, str]] = {
@@ -141,6 +142,7 @@ class RunResult:
         attrs = global_attributes(
             "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
             f"simulate ({p.resolution} resolution, t_end {p.t_end:g} ms)")
+        attrs.update(provenance())  # airpuff, model and library versions, git commit
         attrs["parameters_json"] = json.dumps(p.to_dict(), sort_keys=True)
         for name in CHOICES:
             attrs[name] = getattr(p, name)

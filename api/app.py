@@ -1,4 +1,5 @@
-"""The FastAPI application: settings, lifespan (the job runner), auth, body limit, error format.
+"""The FastAPI application: settings, lifespan (the job runner), the checks before any route runs
+(token, body size, content type, encoding: ``RequestGuard``), error format.
 
 The routes are in ``api.routes``, the browser pages in ``api.pages``.
 
@@ -11,16 +12,17 @@ only the runner thread uses it).
 
 
 import logging
+import re
 import sqlite3
 from contextlib import asynccontextmanager
-from typing import Optional
 
-from fastapi import Depends, FastAPI, HTTPException, Request, status
+from fastapi import Depends, FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from fastapi.responses import JSONResponse, Response
+from fastapi.security import HTTPBearer
+from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from airpuff_core import __version__
@@ -67,61 +69,172 @@ def _request_keys() -> list[str]:
     return _REQUEST_KEYS
 
 
-# -- auth -----------------------------------------------------------------------------------------
+# -- checks before any route runs (plain ASGI middleware) ---------------------------------------
 
-def _auth_dependency(settings: Settings):
-    if not settings.token:
-        return None
-    bearer = HTTPBearer(auto_error=False, description="the value of AIRPUFF_API_TOKEN")
-    token = settings.token
+# Paths open without the token: liveness, and the API's description (/docs loads /openapi.json
+# from the browser, which has no way to add a header to that request; the schema holds nothing
+# secret -- the routes it describes still need the token).
+PUBLIC_PATHS = ("/health", "/docs", "/openapi.json")
 
-    def require_token(request: Request,
-                      cred: Optional[HTTPAuthorizationCredentials] = Depends(bearer)) -> None:
-        ok = cred is not None and cred.scheme.lower() == "bearer" and auth.token_matches(
-            cred.credentials, token)
-        # The pages' session cookie opens the read-only endpoints (their links and the progress
-        # refresh); changing state through the API needs the bearer header (see api.auth).
-        ok = ok or (request.method in auth.SAFE_METHODS and auth.session_ok(request, token))
-        if not ok:
-            raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing or wrong bearer token",
-                                headers={"WWW-Authenticate": "Bearer"})
+# Bodies of these media types are parsed by the API; any other is refused with 415.
+JSON_MEDIA = re.compile(r"application/(?:[\w.+-]+\+)?json")
 
-    return Depends(require_token)
+# The body of the pages' forms (a browser's default encoding of a form).
+FORM_MEDIA = "application/x-www-form-urlencoded"
+
+# First bytes of JSON in UTF-16 or UTF-32 (byte order marks); any NUL byte gives those away too,
+# since JSON in UTF-8 has none.
+WIDE_BOMS = (b"\xff\xfe", b"\xfe\xff")
 
 
-# -- body size limit (plain ASGI middleware) -----------------------------------------------------
+def _problem(status_code: int, field: str, msg: str, typ: str,
+             headers: dict | None = None) -> JSONResponse:
+    """An error in the format of a 422 (``detail`` a list of ``loc``, ``field``, ``msg``,
+    ``type``)."""
+    loc = ["header", field] if field in ("content-type", "content-length") else [field]
+    return JSONResponse({"detail": [{"loc": loc, "field": field, "msg": msg, "type": typ}]},
+                        status_code, headers=headers)
 
-class BodyLimit:
-    """Refuse request bodies above ``limit`` bytes with 413 before anything parses them."""
 
-    def __init__(self, app, limit: int):
+class RequestGuard:
+    """What is checked before a route or a body parser runs, in this order:
+
+    1. the credentials, when a token is set (every path but ``PUBLIC_PATHS`` and the pages'
+       ``pages.OPEN_PATHS``, the login and logout forms, which make their own checks):
+
+       - the API: the bearer token; with ``GET``/``HEAD`` the pages' session cookie will do too
+         (their links, images and refresh); else 401;
+       - the pages (``pages.is_page``): the session cookie; else a redirect to the login form;
+
+    2. the body size, from Content-Length and as the body arrives: 413;
+    3. a body's content type: JSON for the API, ``application/x-www-form-urlencoded`` for the
+       pages' forms (``pages.FORM_PATHS``); another one gets 415 naming ``content-type``;
+    4. the encoding: a charset other than UTF-8 gets 415, a JSON body in UTF-16/32 422.
+
+    The body is read here (at most ``limit`` bytes, after the credentials) and handed on unchanged.
+    The token and cookie comparisons are ``api.auth``'s.
+    """
+
+    def __init__(self, app, limit: int, token: str | None):
         self.app, self.limit = app, limit
+        self.token = token or None
+
+    def _bearer_ok(self, headers: Headers) -> bool:
+        scheme, _, credentials = headers.get("authorization", "").partition(" ")
+        return scheme.lower() == "bearer" and auth.token_matches(credentials.strip(), self.token)
+
+    def _refusal(self, scope) -> Response | None:
+        """The answer to a request without the credentials its path needs; None if it may go on."""
+        path = scope["path"]
+        if self.token is None or path in PUBLIC_PATHS or path in pages.OPEN_PATHS:
+            return None
+        request = Request(scope)  # headers and cookies only: the body is not read
+        if pages.is_page(path):
+            return None if auth.session_ok(request, self.token) else pages.login_redirect(request)
+        if self._bearer_ok(request.headers) or (scope["method"] in auth.SAFE_METHODS
+                                                and auth.session_ok(request, self.token)):
+            return None
+        return JSONResponse({"detail": "missing or wrong bearer token"}, 401,
+                            headers={"WWW-Authenticate": "Bearer"})
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        length = dict(scope.get("headers") or []).get(b"content-length")
-        too_big = False
-        if length is not None:
-            try:
-                too_big = int(length) > self.limit
-            except ValueError:
-                too_big = True
-        if too_big:
-            resp = JSONResponse({"detail": f"request body above {self.limit} bytes"}, 413)
-            return await resp(scope, receive, send)
-        received = 0
+        headers = Headers(scope=scope)
+        answer = self._refusal(scope)
+        if answer is None and not self._length_ok(headers.get("content-length")):
+            answer = self._too_big()
+        if answer is not None:
+            return await answer(scope, receive, send)
+        if scope["method"] not in ("POST", "PUT", "PATCH"):
+            return await self.app(scope, receive, send)
 
-        async def limited_receive():
-            nonlocal received
+        body = bytearray()
+        while True:
             message = await receive()
-            if message["type"] == "http.request":
-                received += len(message.get("body", b""))
-                if received > self.limit:
-                    raise HTTPException(413, f"request body above {self.limit} bytes")
-            return message
+            if message["type"] != "http.request":  # the client went away
+                return
+            body += message.get("body", b"")
+            if len(body) > self.limit:
+                return await self._too_big()(scope, receive, send)
+            if not message.get("more_body", False):
+                break
+        answer = self._check_body(headers, bytes(body), form=scope["path"] in pages.FORM_PATHS)
+        if answer is not None:
+            return await answer(scope, receive, send)
+        sent = False
 
-        return await self.app(scope, limited_receive, send)
+        async def replay():
+            nonlocal sent
+            if not sent:
+                sent = True
+                return {"type": "http.request", "body": bytes(body), "more_body": False}
+            return await receive()
+
+        return await self.app(scope, replay, send)
+
+    def _length_ok(self, length: str | None) -> bool:
+        if length is None:
+            return True
+        try:
+            return int(length) <= self.limit
+        except ValueError:
+            return False
+
+    def _too_big(self) -> JSONResponse:
+        return JSONResponse({"detail": f"request body above {self.limit} bytes"}, 413)
+
+    @staticmethod
+    def _check_body(headers: Headers, body: bytes, form: bool) -> JSONResponse | None:
+        """The content-type and encoding rules (3 and 4 above) for a non-empty body: JSON, or
+        with ``form`` the urlencoded fields of a page's form."""
+        if not body:
+            return None
+        content_type = headers.get("content-type", "")
+        media, _, rest = content_type.partition(";")
+        media = media.strip()
+        accepted = FORM_MEDIA if form else "application/json (a JSON object in UTF-8)"
+        if not (media.lower() == FORM_MEDIA if form else JSON_MEDIA.fullmatch(media.lower())):
+            return _problem(415, "content-type",
+                            f"content-type: {(media or 'none')[:80]!r} is not accepted; "
+                            f"accepted: {accepted}", "content_type")
+        charset = re.search(r"charset\s*=\s*\"?([\w.-]+)", rest, re.IGNORECASE)
+        if charset and charset.group(1).lower() not in ("utf-8", "utf8"):
+            return _problem(415, "content-type",
+                            f"content-type: charset {charset.group(1)[:40]!r} is not accepted; "
+                            "accepted: utf-8", "content_type")
+        if not form and (body.startswith(WIDE_BOMS) or b"\x00" in body):
+            return _problem(422, "body", "body: the JSON is not in UTF-8 (UTF-16 or UTF-32?); "
+                                         "accepted: a JSON object in UTF-8", "json_invalid")
+        return None
+
+
+def _bearer_scheme(settings: Settings):
+    """The bearer scheme as the OpenAPI schema documents it (``RequestGuard`` checks the token,
+    before a body is read); None without a token."""
+    if not settings.token:
+        return None
+    return Depends(HTTPBearer(auto_error=False, description="the value of AIRPUFF_API_TOKEN"))
+
+
+def _json_error_position(exc: RequestValidationError) -> list[dict] | None:
+    """The error of a body that is not JSON, with the line and column of the problem (FastAPI
+    reports a character offset, which would read as a list index); None for other errors."""
+    errors = exc.errors()
+    if len(errors) != 1 or errors[0].get("type") != "json_invalid":
+        return None
+    loc = list(errors[0].get("loc", ()))
+    doc = exc.body if isinstance(exc.body, str) else ""
+    reason = (errors[0].get("ctx") or {}).get("error", "not valid JSON")
+    where = ""
+    if len(loc) == 2 and isinstance(loc[1], int):
+        pos = loc[1]
+        line = doc.count("\n", 0, pos) + 1
+        column = pos - (doc.rfind("\n", 0, pos) + 1) + 1
+        where = f" at line {line}, column {column}"
+    return [{"loc": ["body"], "field": "body",
+             "msg": f"body: invalid JSON{where}: {reason}; accepted: a JSON object in UTF-8",
+             "type": "json_invalid"}]
 
 
 # -- the app --------------------------------------------------------------------------------------
@@ -152,7 +265,7 @@ def create_app(settings: Settings) -> FastAPI:
 
                 await anyio.to_thread.run_sync(runner.stop)
 
-    token_dependency = _auth_dependency(settings)
+    bearer_scheme = _bearer_scheme(settings)
     app = FastAPI(
         title="airpuff",
         version=__version__,
@@ -162,16 +275,18 @@ def create_app(settings: Settings) -> FastAPI:
             "on a Dask cluster. Follow it at /sweeps/{id}, read its metrics at "
             "/sweeps/{id}/metrics and download the combined netCDF at /sweeps/{id}/dataset. "
             "Units and accepted ranges of every parameter are given in the request schema. "
-            + ("Every endpoint except /health needs `Authorization: Bearer <token>`."
-               if settings.token else "")),
+            + ("Every endpoint except /health, /docs and /openapi.json needs "
+               "`Authorization: Bearer <token>` (for GET, the session cookie of the results "
+               "pages' login will do too)." if settings.token else "")),
         lifespan=lifespan, openapi_url=None, docs_url=None, redoc_url=None)
     app.state.settings = settings
     app.state.runner = None
-    app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
+    app.add_middleware(RequestGuard, limit=settings.max_body_bytes, token=settings.token)
 
     @app.exception_handler(RequestValidationError)
     async def on_validation_error(request: Request, exc: RequestValidationError):
-        return JSONResponse({"detail": jsonable_encoder([_describe(e) for e in exc.errors()])}, 422)
+        detail = _json_error_position(exc) or [_describe(e) for e in exc.errors()]
+        return JSONResponse({"detail": jsonable_encoder(detail)}, 422)
 
     @app.exception_handler(StarletteHTTPException)
     async def on_http_error(request: Request, exc: StarletteHTTPException):
@@ -190,6 +305,6 @@ def create_app(settings: Settings) -> FastAPI:
         return JSONResponse({"detail": "the job database is busy; retry shortly"}, 503,
                             headers={"Retry-After": "2"})
 
-    app.include_router(routes.build_router(settings, SweepRequest, token_dependency))
+    app.include_router(routes.build_router(settings, SweepRequest, bearer_scheme))
     app.include_router(pages.router(settings, _describe))
     return app

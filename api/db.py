@@ -22,9 +22,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
-from .status import JOB_STATUSES, POINT_RESULTS, POINT_STATUSES, sql_list
+from .status import ENDED_JOB_STATUSES, JOB_STATUSES, POINT_RESULTS, POINT_STATUSES, sql_list
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 BUSY_TIMEOUT_MS = 30_000
 
 SCHEMA = f"""
@@ -38,7 +38,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     created_at   REAL NOT NULL,
     started_at   REAL,
     finished_at  REAL,
-    error        TEXT
+    error        TEXT,
+    retry_failed INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS points (
     key          TEXT PRIMARY KEY,
@@ -105,6 +106,9 @@ def init(path: str | Path) -> None:
             for stmt in SCHEMA.split(";"):
                 if stmt.strip():
                     con.execute(stmt)
+            columns = {r["name"] for r in con.execute("PRAGMA table_info(jobs)")}
+            if "retry_failed" not in columns:  # a database of schema version 1
+                con.execute("ALTER TABLE jobs ADD COLUMN retry_failed INTEGER NOT NULL DEFAULT 0")
             con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
     finally:
         con.close()
@@ -123,21 +127,23 @@ def iso(t: float | None) -> str | None:
 # -- jobs ------------------------------------------------------------------------------------
 
 def insert_job(con, job_id: str, spec: dict, points: Iterable[tuple[str, float, float, float,
-                                                                   float]]) -> None:
+                                                                   float]],
+               retry_failed: bool = False) -> None:
     """Store a new queued job and its grid: points are (key, E0, IOP, thickness, pmax) in
-    index order."""
+    index order.  ``retry_failed``: compute again points stored as failed by the model."""
     rows = [(job_id, i, *p) for i, p in enumerate(points)]
     with write(con):
-        con.execute("INSERT INTO jobs (id, status, spec_json, n_points, created_at) "
-                    "VALUES (?, 'queued', ?, ?, ?)",
-                    (job_id, json.dumps(spec, sort_keys=True), len(rows), now()))
+        con.execute("INSERT INTO jobs (id, status, spec_json, n_points, created_at, retry_failed) "
+                    "VALUES (?, 'queued', ?, ?, ?, ?)",
+                    (job_id, json.dumps(spec, sort_keys=True), len(rows), now(),
+                     int(bool(retry_failed))))
         con.executemany("INSERT INTO job_points (job_id, idx, key, E0, IOP, thickness, pmax) "
                         "VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
 
 
 JOB_COLUMNS = """
     j.seq, j.id, j.status, j.spec_json, j.n_points, j.created_at, j.started_at, j.finished_at,
-    j.error,
+    j.error, j.retry_failed,
     (SELECT COUNT(*) FROM job_points p WHERE p.job_id = j.id AND p.status = 'ok') AS n_ok,
     (SELECT COUNT(*) FROM job_points p WHERE p.job_id = j.id AND p.status = 'failed') AS n_failed,
     (SELECT COUNT(*) FROM job_points p WHERE p.job_id = j.id AND p.status = 'ok'
@@ -174,6 +180,18 @@ def cancel_job(con, job_id: str) -> bool:
         return True
 
 
+def delete_job(con, job_id: str) -> bool:
+    """Remove an ended job and its grid; False if it does not exist or has not ended."""
+    with write(con):
+        ended = con.execute(f"SELECT 1 FROM jobs WHERE id = ? AND status IN "
+                            f"({sql_list(ENDED_JOB_STATUSES)})", (job_id,)).fetchone()
+        if ended is None:
+            return False
+        con.execute("DELETE FROM job_points WHERE job_id = ?", (job_id,))
+        con.execute("DELETE FROM jobs WHERE id = ?", (job_id,))
+        return True
+
+
 def job_points(con, job_id: str) -> list[sqlite3.Row]:
     return con.execute(
         "SELECT jp.idx, jp.key, jp.E0, jp.IOP, jp.thickness, jp.pmax, jp.status, jp.message, "
@@ -194,8 +212,8 @@ def requeue_running_jobs(con) -> int:
 
 
 def queued_jobs(con) -> list[sqlite3.Row]:
-    """(id, seq, spec_json) of the queued jobs, oldest first."""
-    return con.execute("SELECT id, seq, spec_json FROM jobs WHERE status = 'queued' "
+    """(id, seq, spec_json, retry_failed) of the queued jobs, oldest first."""
+    return con.execute("SELECT id, seq, spec_json, retry_failed FROM jobs WHERE status = 'queued' "
                        "ORDER BY seq").fetchall()
 
 
@@ -239,6 +257,16 @@ def mark_reused(con, rows: Iterable[tuple[str, str | None, str, str]]) -> None:
     with write(con):
         con.executemany("UPDATE job_points SET status = ?, message = ?, reused = 1 "
                         "WHERE job_id = ? AND key = ? AND status = 'pending'", list(rows))
+
+
+def reopen_job_points(con, job_id: str, keys: Iterable[str]) -> None:
+    """Points of a running job whose stored file turned out unusable: pending again (and their
+    ``points`` rows), to be computed anew."""
+    keys = list(keys)
+    with write(con):
+        con.executemany("UPDATE job_points SET status = 'pending', message = NULL, reused = 0 "
+                        "WHERE job_id = ? AND key = ?", [(job_id, k) for k in keys])
+        con.executemany("UPDATE points SET status = 'pending' WHERE key = ?", [(k,) for k in keys])
 
 
 def needed_point_keys(con) -> set[str]:

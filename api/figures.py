@@ -202,12 +202,11 @@ def _draw_history(settings: Settings, key: str, out: Path) -> None:
 def main(argv: list[str]) -> int:
     """``python -m api.figures POINT.nc OUT.png``: apex displacement and jet pressure against
     time of one run (the ``apex_and_jet.png`` figure of ``airpuff plot``)."""
-    import xarray as xr
-
+    from airpuff_core.dataset import open_dataset
     from airpuff_core.plots import plot_apex_and_jet
 
     nc, out = argv
-    with xr.open_dataset(nc, engine="netcdf4") as ds:
+    with open_dataset(nc, engine="netcdf4") as ds:  # time in ms, not decoded into dates
         plot_apex_and_jet(ds.load(), out)
     return 0
 

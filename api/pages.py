@@ -9,6 +9,7 @@
 The pages read and submit jobs through the functions behind the JSON endpoints (``api.routes``)
 and link to the JSON endpoints for the data.  With a token set, every page needs the session
 cookie of ``POST /login`` (see ``api.auth``); without it a page redirects to the login form.
+``api.app.RequestGuard`` checks that, before a body is read, for the paths ``is_page`` names.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from contextlib import closing
 from typing import Any, Callable
 from urllib.parse import parse_qsl, quote
 
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, Depends, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
@@ -36,6 +37,26 @@ LIST_LIMIT = 100  # jobs on the front page
 TABLE_LIMIT = 1000  # point rows on a job's page (the metrics JSON has them all)
 
 
+# The paths of the pages, by which ``api.app.RequestGuard`` tells them from the API's: with a
+# token set, the pages need the session cookie (a request without it is sent to the login form),
+# except the login and logout forms, which make their own checks; the forms' POST bodies are
+# application/x-www-form-urlencoded, not JSON.
+OPEN_PATHS = ("/login", "/logout")
+FORM_PATHS = ("/new", "/login", "/logout")
+
+
+def is_page(path: str) -> bool:
+    """True if ``path`` is one of this module's pages (see ``router``)."""
+    return path in ("/", "/new") or path in OPEN_PATHS or path.startswith("/jobs/")
+
+
+def login_redirect(request: Request) -> RedirectResponse:
+    """The answer to a page asked for without the session cookie: the login form, which comes
+    back to the page afterwards."""
+    here = request.url.path + (f"?{request.url.query}" if request.url.query else "")
+    return RedirectResponse("/login?next=" + quote(here, safe=""), 303)
+
+
 def _safe_next(target: str | None) -> str:
     """A local path to return to after logging in (never another site)."""
     if not target or not target.startswith("/") or target.startswith("//") or "\\" in target:
@@ -50,15 +71,7 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
     SweepRequest = schemas.sweep_request_model(settings.max_points)
     token = settings.token
 
-    def require_session(request: Request) -> None:
-        if token and not auth.session_ok(request, token):
-            raise HTTPException(303, "log in first", headers={
-                "Location": "/login?next=" + quote(request.url.path
-                                                   + (f"?{request.url.query}"
-                                                      if request.url.query else ""), safe="")})
-
-    r = APIRouter(include_in_schema=False, dependencies=[Depends(require_session)])
-    public = APIRouter(include_in_schema=False)
+    r = APIRouter(include_in_schema=False)
 
     def connect() -> closing[sqlite3.Connection]:
         return closing(db.connect(settings.db_path))
@@ -84,14 +97,14 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
                 f'<input type="hidden" name="next" value="{esc(next_path)}">'
                 f'<div><button type="submit" id="login">log in</button></div></form>')
 
-    @public.get("/login")
+    @r.get("/login")
     def login_page(next: str = "/"):
         if not token:
             return RedirectResponse("/", 303)
         return HTMLResponse(page("log in", login_form(_safe_next(next))),
                             headers={"Cache-Control": "no-store"})
 
-    @public.post("/login")
+    @r.post("/login")
     async def login(request: Request):
         form = dict(parse_qsl((await request.body()).decode("utf-8", "replace")))
         target = _safe_next(form.get("next"))
@@ -108,7 +121,7 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
                             samesite="strict", secure=request.url.scheme == "https", path="/")
         return response
 
-    @public.post("/logout")
+    @r.post("/logout")
     def logout():
         response = RedirectResponse("/login" if token else "/", 303)
         response.delete_cookie(auth.SESSION_COOKIE, path="/")
@@ -242,14 +255,7 @@ def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
                 f'<p id="progress">{progress(job)}</p>{error}{times}'
                 f'<p>{" &middot; ".join(links)}</p>')
 
-    return _merged(public, r)
-
-
-def _merged(*routers: APIRouter) -> APIRouter:
-    out = APIRouter(include_in_schema=False)
-    for sub in routers:
-        out.include_router(sub)
-    return out
+    return r
 
 
 # -- parts of a job's page (pure functions of the job's records) ---------------------------------

@@ -1,7 +1,7 @@
 """The routes of the HTTP API, on one ``APIRouter`` (``api.app`` mounts it).
 
 Every handler only reads the job database (``api.db``), except ``POST /sweeps``, which stores a
-new job, and ``DELETE /sweeps/{id}``, which marks it cancelled; the job runner (``api.runner``)
+new job, and ``DELETE /sweeps/{id}``, which cancels a job or removes an ended one; the job runner (``api.runner``)
 does the work.  The handlers find the service's ``Settings`` and runner on ``request.app.state``.
 ``POST /sweeps`` validates its body once, at this edge (the request model of ``api.schemas``,
 generated from the parameter table, then the grid as a whole by ``SweepSpec.validated_points``), and
@@ -11,6 +11,7 @@ computes each point's key once; the rest of the system takes both as given.
 # No `from __future__ import annotations`: FastAPI reads the handlers' annotations, and the body
 # model of POST /sweeps is a local of make_submit, which a string annotation could not resolve.
 import json
+import shutil
 import sqlite3
 import uuid
 from typing import Any, Iterator, Optional
@@ -23,12 +24,13 @@ from fastapi.responses import FileResponse, JSONResponse
 from airpuff_core import __version__
 from airpuff_core.params import SWEPT, ParameterError
 from airpuff_core.result import METRICS
-from sweep.grid import SweepSpec
+from sweep.grid import GRID_FIELD, SweepSpec, check_grid_size
 from sweep.identification import MEASURABLE, IdentifyError, SweepTable, identify
 from sweep.storage import point_key
 
 from . import db, schemas
 from .settings import Settings
+from .status import ACTIVE_JOB_STATUSES
 
 
 def problem_422(loc: list, field: str, msg: str,
@@ -65,7 +67,7 @@ def job_info(row: sqlite3.Row) -> dict[str, Any]:
         "points_reused": row["n_reused"],
         "created_at": db.iso(row["created_at"]), "started_at": db.iso(row["started_at"]),
         "finished_at": db.iso(row["finished_at"]), "error": row["error"],
-        "request": request,
+        "retry_failed": bool(row["retry_failed"]), "request": request,
         "links": {"self": base, "metrics": base + "/metrics", "dataset": base + "/dataset"},
     }
 
@@ -87,16 +89,12 @@ def create_job(con: sqlite3.Connection, settings: Settings,
     ``settings.max_points`` or the solver rejects a combination of parameters.  ``POST /sweeps``
     and the pages' sweep form (``api.pages``) both submit through here."""
     values = dict(values)
+    retry_failed = values.pop("retry_failed", False)
     axes = {name: values.pop(name) for name in SWEPT}
-    n = 1
-    for name in SWEPT:
-        n *= len(axes[name])
-    if n > settings.max_points:
-        shape = " x ".join(str(len(axes[k])) for k in SWEPT)
-        raise problem_422(
-            ["body"], "E0 x IOP x thickness x pmax",
-            f"E0 x IOP x thickness x pmax: the grid has {shape} = {n} points; "
-            f"accepted: at most {settings.max_points} points", "grid_too_large")
+    try:
+        check_grid_size({name: len(axes[name]) for name in SWEPT}, settings.max_points)
+    except ParameterError as err:
+        raise problem_422(["body"], GRID_FIELD, str(err), "grid_too_large") from None
     try:
         spec = SweepSpec(**axes, options=values)
         points = spec.validated_points()
@@ -104,7 +102,7 @@ def create_job(con: sqlite3.Connection, settings: Settings,
         raise problem_422(["body", err.name], err.name, str(err)) from None
     job_id = uuid.uuid4().hex
     rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
-    db.insert_job(con, job_id, spec.to_dict(), rows)
+    db.insert_job(con, job_id, spec.to_dict(), rows, retry_failed)
     return job_id, len(rows)
 
 
@@ -177,17 +175,27 @@ def get_dataset(job_id: str, request: Request, con: sqlite3.Connection = Depends
                         filename=f"airpuff-sweep-{row['id']}.nc")
 
 
-def cancel(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
+def cancel_or_delete(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
+    """A queued or running job is cancelled (200, the job); an ended one (done, failed,
+    cancelled) is removed with its folder, its combined dataset (204).  The point files stay:
+    they are shared by all jobs."""
+    settings = request.app.state.settings
     row = job_or_404(con, job_id)
-    if row["status"] in ("queued", "running"):
-        db.cancel_job(con, job_id)
+    if row["status"] in ACTIVE_JOB_STATUSES:
+        cancelled = db.cancel_job(con, job_id)
         runner = request.app.state.runner
         if runner is not None:
             runner.wake()
         row = job_or_404(con, job_id)
-    if row["status"] in ("done", "failed"):
-        raise HTTPException(409, f"job {job_id} already ended ({row['status']})")
-    return job_info(row)
+        if cancelled:
+            return job_info(row)
+        raise HTTPException(409, f"job {job_id} ended ({row['status']}) while it was being "
+                                 "cancelled; DELETE it again to remove it")
+    if not db.delete_job(con, row["id"]):  # removed by a DELETE at the same moment
+        raise HTTPException(404, f"no sweep job with id {job_id!r}")
+    # The folder comes from the job's own id as stored in the database, never from the request.
+    shutil.rmtree(settings.jobs_dir / row["id"], ignore_errors=True)
+    return Response(status_code=204)
 
 
 def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):
@@ -220,7 +228,7 @@ def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = D
     return {"job_id": body.job_id, **est.to_dict()}
 
 
-# -- schema and docs (behind the token too, when one is set) ---------------------------------------
+# -- schema and docs (open without the token) -------------------------------------------------------
 
 def openapi_json(request: Request):
     return JSONResponse(request.app.openapi())
@@ -239,7 +247,9 @@ def build_router(settings: Settings, SweepRequest, auth) -> APIRouter:  # noqa: 
     unauthorized = {401: {"model": schemas.Problem, "description": "missing or wrong token"}} \
         if settings.token else {}
     invalid = {422: {"model": schemas.ValidationProblem,
-                     "description": "invalid input; `loc`/`field` name the offending field"}}
+                     "description": "invalid input; `loc`/`field` name the offending field"},
+               415: {"model": schemas.ValidationProblem,
+                     "description": "the body is not JSON (content-type)"}}
 
     # Each route: path, handler, method, then how it is documented (/docs, /openapi.json).
     add = router.add_api_route
@@ -265,18 +275,21 @@ def build_router(settings: Settings, SweepRequest, auth) -> APIRouter:  # noqa: 
                    409: {"model": schemas.Problem, "description": "the job is not done"},
                    **not_found, **unauthorized},
         summary="Download the combined netCDF of a finished job")
-    add("/sweeps/{job_id}", cancel, methods=["DELETE"], response_model=schemas.JobInfo,
+    add("/sweeps/{job_id}", cancel_or_delete, methods=["DELETE"], response_model=schemas.JobInfo,
         tags=["sweeps"], dependencies=deps,
-        responses={409: {"model": schemas.Problem, "description": "the job already ended"},
+        responses={204: {"description": "the ended job was removed, with its dataset"},
+                   409: {"model": schemas.Problem,
+                         "description": "the job ended while it was being cancelled"},
                    **not_found, **unauthorized},
-        summary="Cancel a queued or running job (points already finished are kept)")
+        summary="Cancel a queued or running job (200; points already finished are kept), or "
+                "remove an ended one and its dataset (204)")
     add("/identify", identify_endpoint, methods=["POST"], response_model=schemas.IdentifyResult,
         tags=["identify"], dependencies=deps,
         responses={409: {"model": schemas.Problem, "description": "the job is not done"},
                    **not_found, **invalid, **unauthorized},
         summary="Estimate IOP and E0 from a measurement, by interpolation on a finished sweep job")
-    # the schema and docs, behind the token too when one is set
-    add("/openapi.json", openapi_json, methods=["GET"], include_in_schema=False,
-        dependencies=deps)
-    add("/docs", docs, methods=["GET"], include_in_schema=False, dependencies=deps)
+    # the schema and docs, open without the token (api.app.PUBLIC_PATHS: the docs page loads the
+    # schema from the browser, which sends no token)
+    add("/openapi.json", openapi_json, methods=["GET"], include_in_schema=False)
+    add("/docs", docs, methods=["GET"], include_in_schema=False)
     return router

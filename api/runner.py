@@ -30,7 +30,15 @@ writer of the data directory.  The cost is about 0.1 MB per coarse point through
 The scheduler keeps no state across restarts; the database does.  On start-up, jobs left
 ``running`` by a previous server are queued again; their finished points are reused, not
 recomputed (a point file written just before a crash, whose record did not reach the database,
-is read back too).
+is read back too), and temporary files left by a write that was killed are removed.
+
+Stored results are trusted only as far as they can be read: a point file that cannot be read
+in full (or that another model version wrote) counts as missing -- ``sweep.storage.open_point``
+moves it aside to ``points/damaged/`` with a record -- and is computed again, whether the runner
+finds it when a job starts or when the job is combined.  A failure of the infrastructure is
+submitted again (``INFRASTRUCTURE_RETRIES``) and never reused by a later job; a failure of the
+model is reused unless the job asks for ``retry_failed``.  Messages that reach clients (a job's
+``error``, a point's ``message``, ``runner_error`` in /health) carry no path of this machine.
 """
 
 from __future__ import annotations
@@ -44,6 +52,9 @@ import time
 import uuid
 from pathlib import Path
 
+from airpuff_core.provenance import model_version
+from sweep.storage import one_line_message
+
 from . import db
 from .settings import Settings
 from .status import POINT_RESULTS
@@ -51,6 +62,11 @@ from .status import POINT_RESULTS
 log = logging.getLogger("airpuff.runner")
 
 MAX_LOST_RESUBMITS = 3  # futures cancelled under us (scheduler restart) are resubmitted this often
+# A point whose failure is the infrastructure's (a worker lost for good, a write error) is
+# submitted again this often before its failure is recorded.
+INFRASTRUCTURE_RETRIES = 2
+# A point whose stored file proves unusable when its job is combined is computed again this often.
+MAX_DAMAGED_RECOMPUTES = 2
 
 
 class RunnerLocked(RuntimeError):
@@ -91,6 +107,8 @@ class Runner:
         self.trigger: dict[str, str] = {}  # point key -> id of the job that submitted it
         self.params: dict[str, object] = {}  # point key -> RunParams (for resubmission)
         self.lost: dict[str, int] = {}
+        self.infrastructure_retries: dict[str, int] = {}  # point key -> automatic re-runs
+        self.damaged: dict[str, int] = {}  # point key -> recomputes after an unusable file
         self._warmed: set[tuple] = set()
         self._last_info = 0.0
         self._n_cancelled = -1
@@ -123,9 +141,10 @@ class Runner:
             while not self._stop.is_set():
                 try:
                     self._tick()
+                    self.error = None  # recovered (or never failed)
                 except Exception as err:  # noqa: BLE001 - keep serving; the error is reported
                     log.exception("runner loop error")
-                    self.error = f"{type(err).__name__}: {err}"
+                    self.error = one_line_message(f"{type(err).__name__}: {err}")
                     self._stop.wait(2.0)
                 self._wake.wait(self.settings.poll_interval)
                 self._wake.clear()
@@ -133,7 +152,7 @@ class Runner:
         except Exception as err:  # noqa: BLE001
             log.exception("runner failed")
             self.state = "failed"
-            self.error = f"{type(err).__name__}: {err}"
+            self.error = one_line_message(f"{type(err).__name__}: {err}")
         finally:
             self._close()
 
@@ -165,7 +184,7 @@ class Runner:
             except Exception as err:  # noqa: BLE001
                 log.error("cannot start the Dask client: %s", err)
                 self.state = "failed"
-                self.error = f"cannot start the Dask client: {err}"
+                self.error = one_line_message(f"cannot start the Dask client: {err}")
                 self._stop.wait(5.0)
         return False
 
@@ -212,9 +231,18 @@ class Runner:
         self._update_info()
 
     def _recover(self) -> None:
+        from airpuff_core.atomic import remove_stale_temp_files
+
         n = db.requeue_running_jobs(self.con)
         if n:
             log.info("requeued %d job(s) left running by a previous server", n)
+        # This process holds runner.lock: no other writer, every temporary file is stale.
+        folders = [self.settings.points_dir]
+        if self.settings.jobs_dir.is_dir():
+            folders += [d for d in self.settings.jobs_dir.iterdir() if d.is_dir()]
+        removed = [p for folder in folders for p in remove_stale_temp_files(folder)]
+        if removed:
+            log.info("removed %d temporary file(s) of writes that were killed", len(removed))
 
     def _drop_cancelled(self) -> None:
         """The API marks a cancelled job and its pending points in one transaction; here the
@@ -247,15 +275,17 @@ class Runner:
                 spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
                 points = spec.points()
                 self._warm(spec.options)
+                self._dispatch(job_id, job["seq"], points, bool(job["retry_failed"]))
             except Exception as err:  # noqa: BLE001 - a stored spec this version cannot run
+                log.exception("starting job %s", job_id)
                 self._end_job(job_id, "failed", f"cannot start the job: {err}")
-                continue
-            self._dispatch(job_id, job["seq"], points)
 
-    def _dispatch(self, job_id: str, seq: int, points: list) -> None:
+    def _dispatch(self, job_id: str, seq: int, points: list, retry_failed: bool = False) -> None:
         """Each pending point of a job just started is reused (its result is stored), shared (a
-        future computes its key already), read back (a file without a record) or submitted."""
-        from sweep.storage import point_key, read_point
+        future computes its key already), read back (a file without a record) or submitted.
+        Stored failures are reused only if the model failed and the job does not ask for
+        ``retry_failed``; an unusable stored file is moved aside and its point submitted."""
+        from sweep.storage import point_key, read_point, reusable
 
         pending = db.pending_job_points(self.con, job_id)
         reused, submit, on_disk = [], {}, {}
@@ -269,12 +299,12 @@ class Runner:
                 db.set_job_point_key(self.con, job_id, row["idx"], key)
             if key in self.futures or key in submit or key in on_disk:
                 continue  # already computing for another job (or listed twice)
-            stored = self._stored(key)
+            stored = self._stored(key, retry_failed)
             if stored is not None:
                 reused.append((stored["status"], stored["message"], job_id, key))
                 continue
-            found = read_point(self.settings.points_dir, key)
-            if found is not None:  # a file written just before a crash (no record yet)
+            found = read_point(self.settings.points_dir, key)  # None if unusable (set aside)
+            if reusable(found, retry_failed):  # a file written just before a crash (no record)
                 on_disk[key] = (params, {**found, "computed": False})
             else:
                 submit[key] = params
@@ -288,15 +318,18 @@ class Runner:
         log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
                  job_id, len(points), n_reused, len(submit), len(pending) - n_reused - len(submit))
 
-    def _stored(self, key: str):
-        """The points row of ``key`` if its result is final and its file is still on disk."""
-        from sweep.storage import failed_path, point_path
+    def _stored(self, key: str, retry_failed: bool = False):
+        """The points row of ``key`` if its result is final and may be reused: its file is still
+        on disk and can be read, and a failure is the model's and no retry is asked for."""
+        from sweep.storage import read_point, reusable
 
         row = db.point_row(self.con, key)
         if row is None or row["status"] not in POINT_RESULTS:
             return None
-        path = (point_path if row["status"] == "ok" else failed_path)(self.settings.points_dir, key)
-        return row if path.exists() else None
+        record = read_point(self.settings.points_dir, key)  # sets an unusable file aside
+        if record is None or record["status"] != row["status"]:
+            return None
+        return row if reusable(record, retry_failed) else None
 
     def _submit(self, job_id: str, seq: int, submit: dict) -> None:
         """Submit ``{key: RunParams}`` to the cluster for ``job_id``."""
@@ -321,7 +354,7 @@ class Runner:
 
     def _collect(self) -> None:
         """Finished futures: store each point's file and record its result."""
-        from sweep.storage import save_point
+        from sweep.storage import failure_kind, save_point
         from sweep.worker import failure_from_exception
 
         done = [(k, f) for k, f in self.futures.items() if f.done()]
@@ -346,6 +379,15 @@ class Runner:
                 rec = failure_from_exception(self.settings.points_dir, params, fut.exception(),
                                              key)
             fut.release()
+            if (rec["status"] == "failed" and failure_kind(rec) == "infrastructure"
+                    and params is not None and key in db.needed_point_keys(self.con)
+                    and self.infrastructure_retries.get(key, 0) < INFRASTRUCTURE_RETRIES):
+                self.infrastructure_retries[key] = self.infrastructure_retries.get(key, 0) + 1
+                log.warning("point %s: %s; submitting it again (%d of %d)", key, rec["message"],
+                            self.infrastructure_retries[key], INFRASTRUCTURE_RETRIES)
+                self._submit(job_id, db.job_seq(self.con, job_id), {key: params})
+                continue
+            self.infrastructure_retries.pop(key, None)
             records.append((key, job_id, rec))
         if records:
             self._record(records)
@@ -357,13 +399,17 @@ class Runner:
             if rec.get("key") != key:  # the workers run another version of airpuff
                 log.warning("point %s came back under key %s: do the workers run the same "
                             "airpuff version as this server?", key, rec.get("key"))
+            if rec.get("status") == "ok" and rec.get("model_version") != model_version():
+                raise RuntimeError(f"the worker runs model version {rec.get('model_version')}, "
+                                   f"this server {model_version()}: install the same airpuff "
+                                   "on the workers")
             return save_point(self.settings.points_dir, key, rec, data)
         except Exception as err:  # noqa: BLE001 - e.g. a full disk; a later job recomputes it
             from airpuff_core.result import METRICS
 
             log.exception("storing point %s", key)
-            message = " ".join(f"could not store the result: {type(err).__name__}: {err}".split())
-            return {"status": "failed", "message": message,
+            message = one_line_message(f"could not store the result: {type(err).__name__}: {err}")
+            return {"status": "failed", "message": message, "kind": "infrastructure",
                     "metrics": {name: None for name in METRICS}, "wall_s": None,
                     "computed": True}
 
@@ -372,7 +418,7 @@ class Runner:
 
     def _finish_jobs(self) -> None:
         """running -> done | failed, once no point of the job is pending."""
-        from sweep.combine import write_sweep
+        from sweep.combine import DamagedPointFiles, write_sweep
         from sweep.grid import SweepSpec
 
         for job in db.running_jobs_without_pending_points(self.con):
@@ -381,9 +427,13 @@ class Runner:
             try:
                 spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
                 t0 = time.perf_counter()
+                keys = db.job_point_keys(self.con, job_id)
                 write_sweep(spec, self.settings.points_dir, self.settings.job_dataset(job_id),
-                            db.job_point_keys(self.con, job_id))
+                            keys)
                 log.info("job %s combined in %.2f s", job_id, time.perf_counter() - t0)
+            except DamagedPointFiles as err:
+                self._recompute_damaged(job_id, spec, keys, err.keys)
+                continue
             except Exception as err:  # noqa: BLE001
                 log.exception("combining job %s", job_id)
                 self._end_job(job_id, "failed", f"combining the points failed: "
@@ -396,6 +446,25 @@ class Runner:
             else:
                 self._end_job(job_id, "done", None)
 
+    def _recompute_damaged(self, job_id: str, spec, keys: list[str], damaged: list[str]) -> None:
+        """Point files of a job found unusable when combining (moved aside): their points are
+        pending again and submitted, at most ``MAX_DAMAGED_RECOMPUTES`` times each."""
+        over = [k for k in damaged if self.damaged.get(k, 0) >= MAX_DAMAGED_RECOMPUTES]
+        if over:
+            self._end_job(job_id, "failed", f"the file of point {over[0]} was unusable after "
+                                            f"{MAX_DAMAGED_RECOMPUTES} recomputations (see "
+                                            "points/damaged/)")
+            return
+        for k in damaged:
+            self.damaged[k] = self.damaged.get(k, 0) + 1
+        params_by_key = dict(zip(keys, spec.points()))
+        log.warning("job %s: %d point file(s) unusable, computing them again", job_id,
+                    len(damaged))
+        db.reopen_job_points(self.con, job_id, damaged)
+        self._submit(job_id, db.job_seq(self.con, job_id),
+                     {k: params_by_key[k] for k in damaged if k not in self.futures})
+
     def _end_job(self, job_id: str, status: str, error: str | None) -> None:
+        error = None if error is None else one_line_message(error)
         db.end_job(self.con, job_id, status, error)
         log.info("job %s %s%s", job_id, status, f": {error}" if error else "")

@@ -92,6 +92,10 @@ def sweep_request_model(max_points: int) -> type[BaseModel]:
         fields[name] = _choice_field(name)
     for name in INT_PARAMETERS:
         fields[name] = _int_field(name)
+    fields["retry_failed"] = (Annotated[bool, Strict()], Field(
+        default=False, description="compute again the points stored as failed by the model (a "
+                                   "blow-up, no convergence), which are otherwise reused; "
+                                   "failures of the infrastructure are always computed again"))
     doc = (f"A sweep over the grid E0 x IOP x thickness x pmax (at most {max_points} points). "
            "All other parameters are single values shared by every point; omitted ones take "
            "their defaults. Unknown keys are rejected.")
@@ -118,6 +122,8 @@ class JobInfo(BaseModel):
     started_at: Optional[str] = Field(description="time the runner started the job, ISO 8601 UTC")
     finished_at: Optional[str] = Field(description="time the job ended, ISO 8601 UTC")
     error: Optional[str] = Field(description="why the job failed or was cancelled, else null")
+    retry_failed: bool = Field(description="whether points stored as failed by the model are "
+                                           "computed again")
     request: dict[str, Any] = Field(description="the sweep as submitted, with defaults filled in")
     links: dict[str, str] = Field(description="URLs of the job, its metrics and its dataset")
 

@@ -1,7 +1,7 @@
 """The statuses of a sweep job and of its points: the one list (database, API schema, runner).
 
 A job moves ``queued -> running -> done | failed``; ``queued`` or ``running`` may become
-``cancelled`` (DELETE /sweeps/{id}).  A server that stops leaves ``running`` jobs behind; the
+``cancelled`` (DELETE /sweeps/{id}); an ended job is removed, with its dataset, by a DELETE.  A server that stops leaves ``running`` jobs behind; the
 next runner on the same data folder puts them back to ``queued`` (their finished points are
 reused).  A point of a job is ``pending`` until its result is known: ``ok`` or ``failed``, or
 ``cancelled`` with its job.  The transitions are made by ``api.runner`` and, for the

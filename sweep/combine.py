@@ -5,10 +5,17 @@ and ``time`` [ms].  Variables: every metric of ``airpuff_core.result.METRICS`` (
 or failed), ``status`` ("ok", "failed", or "missing" for a point not run yet -- a file combined
 after an interruption), ``message`` (why a point failed, or why some of its metrics are missing),
 ``point_key`` (the per-point file with the shapes and fluid fields is ``<points_dir>/<point_key>.nc``,
-named in the ``point_files`` attribute), ``wall_time`` [s], and the histories of
+named in the ``point_files`` attribute relative to the combined file's folder), ``model_version``
+and ``provenance`` (per point: the model version, and the JSON of the provenance attributes of
+the point's own file: airpuff version, git commit, library versions), ``wall_time`` [s], and the
+histories of
 ``SWEEP_HISTORIES`` on one common ``time`` axis.  The non-swept run options are scalar
 coordinates (numbers, with units) and global attributes (all of them, as JSON too).  The
 per-point files it refers to are described in docs/model.md, section 7.
+
+A point file that cannot be read (or was made by another model version) is moved aside by
+``sweep.storage.open_point``; :func:`combine` then raises :class:`DamagedPointFiles` naming those
+points, so that the caller computes them again instead of writing a file with holes.
 """
 
 from __future__ import annotations
@@ -22,11 +29,27 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from airpuff_core.dataset import global_attributes, open_dataset, time_coordinate
+from airpuff_core.atomic import remove_stale_temp_files
+from airpuff_core.dataset import global_attributes, time_coordinate
 from airpuff_core.params import PARAMETERS, SWEPT
+from airpuff_core.provenance import PROVENANCE_ATTRS, provenance
 from airpuff_core.result import HISTORIES, METRICS
 
-from .storage import notes_message, point_key, point_path, read_point, write_dataset
+from .storage import notes_message, open_point, point_key, point_path, read_point, write_dataset
+
+# Temporary files of a combined file older than this are left by a killed process: no combine
+# takes this long.
+STALE_TEMP_S = 3600.0
+
+
+class DamagedPointFiles(RuntimeError):
+    """Point files of a sweep that could not be used (moved aside): ``keys`` must be computed
+    again before the sweep can be combined."""
+
+    def __init__(self, keys: list[str]):
+        self.keys = list(keys)
+        super().__init__(f"{len(self.keys)} point file(s) could not be read and were moved "
+                         f"aside; compute them again: {', '.join(self.keys)}")
 
 # Histories copied into the combined file (the others stay in the per-point files).
 SWEEP_HISTORIES = ("apex_displacement", "jet_pressure_apex")
@@ -51,24 +74,37 @@ class _Grid:
         self.status = np.full(self.shape, "missing", dtype=object)
         self.message = np.full(self.shape, "not run yet", dtype=object)
         self.keys = np.full(self.shape, "", dtype=object)
+        self.model_version = np.full(self.shape, "", dtype=object)
+        self.provenance = np.full(self.shape, "", dtype=object)
+        self.damaged: list[str] = []
         self.wall = np.full(self.shape, np.nan)
 
 
-def combine(spec, points_dir: str | os.PathLike, keys: list[str] | None = None) -> xr.Dataset:
+def combine(spec, points_dir: str | os.PathLike, keys: list[str] | None = None,
+            point_files: str = "points") -> xr.Dataset:
     """The combined dataset of a sweep (layout in the module docstring), built from the point
     files in ``points_dir``.  ``keys``: the point keys in the C order of ``spec.points()``, as
-    the caller computed them when the points entered the system (computed here if None)."""
+    the caller computed them when the points entered the system (computed here if None).
+    ``point_files``: the points folder as the ``point_files`` attribute names it (relative to
+    the combined file: no path of this machine goes into a file that is shared)."""
     points_dir = Path(points_dir)
     grid = _read(spec, points_dir, keys)
+    if grid.damaged:
+        raise DamagedPointFiles(grid.damaged)
     time_axis = _common_time([t for t, _ in grid.series.values()])
     return xr.Dataset(_data_vars(grid, time_axis), coords=_coords(spec, time_axis),
-                      attrs=_attrs(spec, grid, points_dir))
+                      attrs=_attrs(spec, grid, point_files))
 
 
 def write_sweep(spec, points_dir: str | os.PathLike, path: str | os.PathLike,
                 keys: list[str] | None = None) -> Path:
-    """Combine the point files of ``spec`` and write ``path`` atomically (temp file + rename)."""
-    return write_dataset(combine(spec, points_dir, keys), path)
+    """Combine the point files of ``spec`` and write ``path`` atomically (temp file + rename).
+    Temporary files of earlier combines killed midway are removed first.  Raises
+    :class:`DamagedPointFiles` if point files had to be moved aside."""
+    path = Path(path)
+    remove_stale_temp_files(path.parent, STALE_TEMP_S)
+    point_files = os.path.relpath(Path(points_dir).resolve(), path.parent.resolve())
+    return write_dataset(combine(spec, points_dir, keys, point_files), path)
 
 
 def _read(spec, points_dir: Path, keys: list[str] | None) -> _Grid:
@@ -78,9 +114,12 @@ def _read(spec, points_dir: Path, keys: list[str] | None) -> _Grid:
         keys = [point_key(p) for p in spec.points()]
     for idx, key in zip(np.ndindex(*spec.shape), keys):  # C order, as spec.points()
         grid.keys[idx] = key
-        path = point_path(points_dir, key)
-        if path.exists():
-            _read_point_file(grid, idx, path)
+        if point_path(points_dir, key).is_file():
+            ds = open_point(points_dir, key)  # None: unusable, moved aside
+            if ds is None:
+                grid.damaged.append(key)
+            else:
+                _read_point_file(grid, idx, ds)
             continue
         record = read_point(points_dir, key)
         if record is not None:  # a failure record
@@ -91,10 +130,11 @@ def _read(spec, points_dir: Path, keys: list[str] | None) -> _Grid:
     return grid
 
 
-def _read_point_file(grid: _Grid, idx: tuple, path: Path) -> None:
-    with open_dataset(path, engine="netcdf4") as ds:
-        ds = ds.load()
+def _read_point_file(grid: _Grid, idx: tuple, ds: xr.Dataset) -> None:
     grid.status[idx] = "ok"
+    grid.model_version[idx] = str(ds.attrs.get("model_version", ""))
+    grid.provenance[idx] = json.dumps({k: str(ds.attrs[k]) for k in PROVENANCE_ATTRS
+                                       if k in ds.attrs}, sort_keys=True)
     grid.message[idx] = notes_message({m: ds[m].attrs.get("comment", "") for m in METRICS if m in ds})
     for name in METRICS:
         if name in ds:
@@ -140,6 +180,12 @@ def _data_vars(grid: _Grid, time_axis: np.ndarray) -> dict[str, Any]:
                               {"long_name": "key of the point's own file, <point_key>.nc in the "
                                             "folder of the point_files attribute (shapes and "
                                             "fluid fields)"})
+    data_vars["model_version"] = (dims, grid.model_version.astype(str),
+                                  {"long_name": "model version (hash of the numerical source "
+                                                "code) that computed the point"})
+    data_vars["provenance"] = (dims, grid.provenance.astype(str),
+                               {"long_name": "provenance of the point's own file as JSON: airpuff, "
+                                             "model and library versions, git commit"})
     data_vars["wall_time"] = (dims, grid.wall, {"units": "s", "long_name": "wall time of the run at this point"})
     for h in SWEEP_HISTORIES:
         values = np.full(grid.shape + (time_axis.size,), np.nan)
@@ -165,13 +211,14 @@ def _coords(spec, time_axis: np.ndarray) -> dict[str, Any]:
     return coords
 
 
-def _attrs(spec, grid: _Grid, points_dir: Path) -> dict[str, Any]:
+def _attrs(spec, grid: _Grid, point_files: str) -> dict[str, Any]:
     options = spec.run_options()
     n_ok = int((grid.status == "ok").sum())
     n_failed = int((grid.status == "failed").sum())
     attrs: dict[str, Any] = global_attributes(
         "airpuff parameter sweep: corneal air-puff test over E0, IOP, thickness, pmax",
         "combined by sweep.combine from per-point files")
+    attrs.update(provenance())  # of the combining process; each point's own: variable provenance
     attrs.update({
         "sweep_json": json.dumps(spec.to_dict(), sort_keys=True),
         "run_options_json": json.dumps(options, sort_keys=True),
@@ -179,7 +226,7 @@ def _attrs(spec, grid: _Grid, points_dir: Path) -> dict[str, Any]:
         "n_ok": n_ok,
         "n_failed": n_failed,
         "n_missing": spec.n_points - n_ok - n_failed,
-        "point_files": str(points_dir / "<point_key>.nc"),
+        "point_files": str(Path(point_files) / "<point_key>.nc"),
     })
     for name, value in options.items():
         attrs[f"param_{name}"] = value

@@ -15,17 +15,20 @@ Interface used by the HTTP API (issue 5) -- keep these names:
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import numpy as np
 
-from airpuff_core.params import PARAMETERS, SWEPT, ParameterError, RunParams
+from airpuff_core.params import PARAMETERS, SWEPT, ParameterError, RunParams, parse_decimal
 
 # Grid values are rounded to this many significant digits, so that "0.1:0.3:3" gives exactly
 # [0.1, 0.2, 0.3] and not 0.30000000000000004: the values end up in netCDF coordinates, in
 # point keys (a resume must find the same keys) and in users' .sel() calls.
 SIGNIFICANT_DIGITS = 12
+
+GRID_FIELD = "E0 x IOP x thickness x pmax"  # the field named when the grid as a whole is too large
 
 AXIS_SYNTAX = "a comma list of numbers (e.g. 0.3,0.5,0.7) or start:stop:num (e.g. 10:30:5)"
 
@@ -36,12 +39,42 @@ def _round(x: float) -> float:
 
 def _number(name: str, token: str, whole: str) -> float:
     try:
-        x = float(token)
+        x = parse_decimal(token)
     except ValueError:
         raise ParameterError(name, whole, AXIS_SYNTAX) from None
     if not math.isfinite(x):
         raise ParameterError(name, whole, AXIS_SYNTAX)
     return x
+
+
+def axis_length(name: str, text: str) -> int:
+    """The number of values of an axis in the syntax of :func:`parse_axis`, without making them
+    (``10:30:100000000`` answers at once).  Raises ParameterError on a malformed ``num``; the
+    values themselves are checked by :func:`parse_axis`."""
+    text = str(text).strip()
+    if ":" in text:
+        parts = text.split(":")
+        if len(parts) != 3:
+            raise ParameterError(name, text, AXIS_SYNTAX)
+        try:
+            return int(parts[2].strip())
+        except ValueError:
+            raise ParameterError(name, text, "start:stop:num with num a whole number >= 1") from None
+    return text.count(",") + 1
+
+
+def check_grid_size(lengths: dict[str, int], max_points: int, hint: str = "") -> int:
+    """The number of points of a grid whose axes have ``lengths`` (swept name -> number of
+    values); raises ParameterError naming the four axes if it is above ``max_points`` (``hint``
+    says how to raise the limit)."""
+    n = 1
+    for name in SWEPT:
+        n *= max(1, int(lengths.get(name, 1)))
+    if n > max_points:
+        shape = " x ".join(str(lengths.get(name, 1)) for name in SWEPT)
+        raise ParameterError(GRID_FIELD, f"{shape} = {n} points",
+                             f"at most {max_points} points{hint}")
+    return n
 
 
 def parse_axis(name: str, text: str) -> list[float]:
@@ -93,7 +126,7 @@ def axis_values(name: str, text: str, max_num: int | None = None) -> list[float]
 
 def _check_unique(name: str, values: list[float]) -> None:
     if len(set(values)) != len(values):
-        dup = sorted({v for v in values if values.count(v) > 1})
+        dup = sorted(v for v, n in Counter(values).items() if n > 1)
         raise ParameterError(name, dup[0] if len(dup) == 1 else dup, "distinct values (no duplicates)")
 
 

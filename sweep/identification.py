@@ -117,10 +117,10 @@ class SweepTable:
 
     @classmethod
     def from_netcdf(cls, path) -> "SweepTable":
-        import xarray as xr
+        from airpuff_core.dataset import open_dataset
 
         try:
-            ds = xr.open_dataset(path, engine="netcdf4")
+            ds = open_dataset(path, engine="netcdf4")
         except FileNotFoundError:
             raise IdentifyError("sweep", f"sweep file {str(path)!r} not found") from None
         except Exception as err:  # noqa: BLE001 - any unreadable file

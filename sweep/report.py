@@ -120,5 +120,7 @@ def summary_table(outcome, max_rows: int = 40) -> str:
                  f"{outcome.computed} computed now, {outcome.reused} already stored; "
                  f"wall {_clock(outcome.wall_s)}"
                  + (f" (Numba warm-up {outcome.warmup_s:.1f} s)" if outcome.warmup_s is not None else ""))
+    lines.append(f"model version {outcome.model_version} (stored points of other versions are "
+                 "not reused)")
     lines.append(f"wrote {outcome.path}")
     return "\n".join(lines)

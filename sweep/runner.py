@@ -12,7 +12,11 @@ The runner owns the order of events that makes a sweep cheap and restartable:
 5. write ``DIR/sweep.nc`` from the point files (also when some points failed).
 
 A point that fails is recorded by ``sweep.worker.run_point`` on the worker; a point whose task dies anyway (it
-crashed its worker process three times: ``KilledWorker``) is recorded here.  A worker that dies for
+crashed its worker process three times: ``KilledWorker``) is recorded here.  A failure of the
+infrastructure (``sweep.storage.failure_kind``: anything but the solver's verdict) is submitted
+again, up to ``INFRASTRUCTURE_RETRIES`` times, and a stored one is never reused; a failure of the
+model is kept unless ``retry_failed``.  A point file that cannot be read, at the start or when
+combining, counts as missing (``sweep.storage.open_point`` moves it aside) and is computed again.  A worker that dies for
 an outside reason is restarted by its Nanny and its task is re-run elsewhere; nothing is lost,
 because results live in files, not in the scheduler.
 
@@ -31,11 +35,18 @@ from typing import Callable
 from airpuff_core.params import RunParams
 
 from .cluster import check_workers, close_client, make_client
-from .combine import write_sweep
+from airpuff_core.provenance import model_version
+
+from .combine import DamagedPointFiles, write_sweep
 from .grid import SweepSpec
 from .numba_cache import warm_numba_cache
-from .storage import POINTS_SUBDIR, SWEEP_FILE, point_key, read_point, write_spec
+from .storage import (POINTS_SUBDIR, SWEEP_FILE, failure_kind, point_key, read_point, reusable,
+                      write_spec)
 from .worker import failure_from_exception, run_point
+
+# Automatic re-runs of a point whose failure is the infrastructure's (a lost worker, a write
+# error), after the first attempt.
+INFRASTRUCTURE_RETRIES = 2
 
 
 @dataclass
@@ -60,6 +71,7 @@ class SweepOutcome:
     warmup_s: float | None
     records: list[dict] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    model_version: str = field(default_factory=model_version)
 
     @property
     def ok(self) -> int:
@@ -78,7 +90,8 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
     ``client``: an existing ``distributed.Client`` (left open); otherwise one is made with
     ``make_client(workers, scheduler)`` and closed (with its LocalCluster) at the end, also on
     Ctrl-C.  No cluster is started if every point is already stored.  ``retry_failed``: re-run
-    points stored as failed (by default they keep their recorded failure).  ``points_dir``: where
+    points stored as failed by the model (by default they keep their recorded failure; failures
+    of the infrastructure are always re-run).  ``points_dir``: where
     the point files live (default ``out_dir/points``); sweeps may share one, since a point's file
     name is the hash of its parameters.
 
@@ -104,8 +117,8 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
     records: dict[str, dict] = {}
     todo: list[tuple[str, RunParams]] = []
     for key, p in zip(keys, points):
-        rec = read_point(points_dir, key)
-        if rec is not None and (rec["status"] == "ok" or not retry_failed):
+        rec = read_point(points_dir, key)  # an unreadable file is moved aside: None
+        if reusable(rec, retry_failed):
             rec["computed"] = False
             records[key] = rec
         else:
@@ -119,44 +132,80 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
 
     warmup_s = None
     warnings: list[str] = []
-    if todo:
-        # the sweep's options at the default E0, IOP, thickness and pmax: an ordinary point that
-        # runs through every kernel (the first missing point might fail at once, e.g. a 10 um cornea)
-        warmup_s = warm_numba_cache(RunParams.from_dict(spec.options), fallback=todo[0][1])
-        own_client = client is None
-        if own_client:
-            client = make_client(workers=workers, scheduler=scheduler)
+    client_box = {"client": client, "own": client is None}
+    try:
+        if todo:
+            warmup_s = _compute(spec, todo, points_dir, retry_failed, client_box, workers,
+                                scheduler, on_cluster_ready, warnings, records, counts, progress,
+                                t_start)
         try:
-            warnings = check_workers(client)
-            if on_cluster_ready:
-                on_cluster_ready(client)
-            counts["workers"] = max(1, len(client.scheduler_info().get("workers", {})))
-            futures = _submit(client, todo, points_dir, retry_failed)
-            from distributed import as_completed
-
-            for fut in as_completed(list(futures)):
-                key, params = futures.pop(fut)
-                rec = _collect(fut, key, params, points_dir)
-                records[rec["key"]] = rec
-                counts["done"] += 1
-                # normally computed; read back if another task stored it first (a re-run after
-                # a lost worker that had already written its file)
-                counts["computed" if rec.get("computed", True) else "reused"] += 1
-                counts["failed"] += rec["status"] == "failed"
-                counts["elapsed_s"] = time.perf_counter() - t_start
-                if progress:
-                    progress(rec, dict(counts))
-        finally:
-            if own_client:
-                close_client(client)
-
-    path = write_sweep(spec, points_dir, out_dir / SWEEP_FILE, keys)
+            path = write_sweep(spec, points_dir, out_dir / SWEEP_FILE, keys)
+        except DamagedPointFiles as err:  # files damaged since they were written: once more
+            by_key = dict(zip(keys, points))
+            again = [(k, by_key[k]) for k in err.keys]
+            for k, _ in again:
+                old = records.pop(k, None)
+                if old is not None:
+                    counts["done"] -= 1
+                    counts["computed" if old.get("computed", True) else "reused"] -= 1
+            _compute(spec, again, points_dir, retry_failed, client_box, workers, scheduler,
+                     on_cluster_ready, warnings, records, counts, progress, t_start)
+            path = write_sweep(spec, points_dir, out_dir / SWEEP_FILE, keys)
+    finally:
+        if client_box["own"] and client_box["client"] is not None:
+            close_client(client_box["client"])
     ordered = [records.get(key) for key in keys]
     return SweepOutcome(
         n_points=len(points), computed=counts["computed"], reused=counts["reused"],
         failed=sum(r is not None and r["status"] == "failed" for r in ordered), path=path,
         out_dir=out_dir, wall_s=time.perf_counter() - t_start, warmup_s=warmup_s,
         records=ordered, warnings=warnings)
+
+
+def _compute(spec, todo, points_dir: Path, retry_failed: bool, client_box: dict, workers: int,
+             scheduler, on_cluster_ready, warnings: list, records: dict, counts: dict,
+             progress, t_start: float) -> float:
+    """Compute ``todo`` (``(key, RunParams)`` pairs) on the cluster, starting it if needed (kept
+    in ``client_box``); fills ``records`` and ``counts`` and reports progress.  A failure of the
+    infrastructure is submitted again up to ``INFRASTRUCTURE_RETRIES`` times.  Returns the
+    Numba warm-up time in this process [s]."""
+    from distributed import as_completed
+
+    # the sweep's options at the default E0, IOP, thickness and pmax: an ordinary point that
+    # runs through every kernel (the first missing point might fail at once, e.g. a 10 um cornea)
+    warmup_s = warm_numba_cache(RunParams.from_dict(spec.options), fallback=todo[0][1])
+    if client_box["client"] is None:
+        client_box["client"] = make_client(workers=workers, scheduler=scheduler)
+    client = client_box["client"]
+    if not client_box.get("checked"):
+        client_box["checked"] = True
+        warnings.extend(check_workers(client))
+        if on_cluster_ready:
+            on_cluster_ready(client)
+    counts["workers"] = max(1, len(client.scheduler_info().get("workers", {})))
+    futures = _submit(client, todo, points_dir, retry_failed)
+    attempts = {key: 0 for key, _ in todo}
+    pending = as_completed(list(futures))
+    for fut in pending:
+        key, params = futures.pop(fut)
+        rec = _collect(fut, key, params, points_dir)
+        if (rec["status"] == "failed" and failure_kind(rec) == "infrastructure"
+                and attempts[key] < INFRASTRUCTURE_RETRIES):
+            attempts[key] += 1  # the infrastructure's fault: once more (its record is not kept)
+            more = _submit(client, [(key, params)], points_dir, retry_failed)
+            futures.update(more)
+            pending.update(more)
+            continue
+        records[rec["key"]] = rec
+        counts["done"] += 1
+        # normally computed; read back if another task stored it first (a re-run after
+        # a lost worker that had already written its file)
+        counts["computed" if rec.get("computed", True) else "reused"] += 1
+        counts["failed"] += rec["status"] == "failed"
+        counts["elapsed_s"] = time.perf_counter() - t_start
+        if progress:
+            progress(rec, dict(counts))
+    return warmup_s
 
 
 def _submit(client, todo, points_dir: Path, retry_failed: bool) -> dict:

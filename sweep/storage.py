@@ -4,19 +4,30 @@ Layout of a sweep folder ``DIR``::
 
     DIR/sweep.json                the SweepSpec (user units), written when the sweep starts
     DIR/points/<key>.nc           a finished point: the per-run netCDF (docs/model.md, section 7)
-    DIR/points/<key>.failed.json  a failed point: parameters, reason, error type
+    DIR/points/<key>.failed.json  a failed point: parameters, reason, error type, kind of failure
+    DIR/points/damaged/           point files that could not be read, moved aside, each with a
+                                  record of why (<key>.<time>.nc and <key>.<time>.json)
     DIR/sweep.nc                  the combined file (dims E0, IOP, thickness, pmax): sweep.combine
 
 Why one file per point: netCDF4/HDF5 cannot take writes from several processes into one file
 (measured: 65 % of concurrent appends fail), so each point file is written to a temporary name
-and renamed into place (atomic on POSIX), and only one process combines.  A point file that
-exists is therefore complete, which is what makes resuming safe: a point is done iff its file
-exists, and it is never rewritten.
+and renamed into place (``airpuff_core.atomic``), and only one process combines.  A point file
+that exists was therefore complete when written; one that can no longer be read (a disk that
+filled up, a file truncated or overwritten afterwards) or that another model version wrote
+counts as missing: :func:`open_point` moves it aside to ``damaged/`` with a record, and the point
+is computed again.  A stored point is never rewritten in place.
 
-The key of a point (:func:`point_key`) is a hash of its full parameter set, so identical
-parameters always map to the same file, whichever sweep or job asked for them.  It is computed
-once per point, where the point enters the system (``sweep.runner`` or the API's ``POST
-/sweeps``), and passed along with the point from there on.
+The key of a point (:func:`point_key`) is a hash of its full parameter set and of the model
+version (``airpuff_core.provenance.model_version``, a hash of the numerical source code), so
+identical parameters map to the same file, whichever sweep or job asked for them, as long as
+the solver is the same; a changed solver computes its points anew.  The key is computed once
+per point, where the point enters the system (``sweep.runner`` or the API's ``POST /sweeps``),
+and passed along with the point from there on.
+
+A failure record says which kind of failure it was (:func:`failure_kind`): ``model`` (the
+solver's own verdict: ``SimulationError``, ``ParameterError``; computing it again gives the same
+failure, so it is kept unless a retry is asked for) or ``infrastructure`` (anything else: a lost
+worker, a write error; computed again automatically, see :func:`reusable`).
 """
 
 from __future__ import annotations
@@ -26,41 +37,41 @@ import hashlib
 import json
 import math
 import os
-import tempfile
+import re
+import time
 from pathlib import Path
 from typing import Any
 
 import xarray as xr
 
+from airpuff_core.atomic import atomic_write
+from airpuff_core.dataset import open_dataset
+from airpuff_core.provenance import model_version
 from airpuff_core.result import METRICS
 
 POINTS_SUBDIR = "points"
+DAMAGED_SUBDIR = "damaged"
 SWEEP_FILE = "sweep.nc"
 SPEC_FILE = "sweep.json"
 
 # Fields of a record that describe one call (which process, Numba activity), not the point.
 PER_CALL_FIELDS = ("computed", "pid", "first_in_process", "jit_compiled", "jit_loaded")
 
+# Failures that are the solver's verdict on the parameters (the exception's class name): computing
+# the point again gives the same failure.  Any other failure is the infrastructure's.
+MODEL_FAILURES = ("SimulationError", "ParameterError")
+
 # The first bytes of a netCDF file: HDF5 (netCDF-4) or classic netCDF (CDF1 / CDF2).
 NETCDF_MAGIC = (b"\x89HDF", b"CDF\x01", b"CDF\x02")
 
 
 # -- names ---------------------------------------------------------------------------------------
-# Run options added after points were first stored, with the value that reproduces the runs made
-# before them.  While an option holds that value it is left out of the key, so stored points keep
-# their keys; any other value enters the key.
-KEY_NEUTRAL = {"model": "paper", "cornea": "membrane", "limbus": "clamped",
-               "hyperviscosity_operator": "brookshaw", "globe": "rigid", "ocular_rigidity": 0.0126,
-               "ve_g": 0.0, "ve_tau": 10.0}
-
-
 def point_key(params) -> str:
-    """Stable identifier of a parameter set (a ``RunParams``): first 16 hex digits of the
-    SHA-256 of the sorted JSON of ``params.to_dict()`` without the options of ``KEY_NEUTRAL``
-    that hold their neutral value.  Identical parameters give identical keys in any process."""
-    values = {k: v for k, v in params.to_dict().items()
-              if not (k in KEY_NEUTRAL and v == KEY_NEUTRAL[k])}
-    text = json.dumps(values, sort_keys=True, separators=(",", ":"))
+    """Stable identifier of a parameter set (a ``RunParams``) computed by this model: first 16
+    hex digits of the SHA-256 of the sorted JSON of ``params.to_dict()`` and the model version.
+    Identical parameters give identical keys in any process running the same solver code."""
+    text = json.dumps({"parameters": params.to_dict(), "model_version": model_version()},
+                      sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -74,27 +85,11 @@ def failed_path(points_dir: str | os.PathLike, key: str) -> Path:
     return Path(points_dir) / f"{key}.failed.json"
 
 
-# -- atomic writes -------------------------------------------------------------------------------
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to a temporary file in the same folder, then rename: readers never see half
-    a file.  (Datasets are written by ``airpuff_core.dataset.write_netcdf``, which does the same.)"""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
+# -- writes --------------------------------------------------------------------------------------
 def write_json(path: str | os.PathLike, record: dict) -> Path:
     """``record`` as indented, key-sorted JSON, written atomically."""
-    return atomic_write_bytes(path, (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
+    text = json.dumps(record, indent=1, sort_keys=True) + "\n"
+    return atomic_write(path, lambda tmp: tmp.write_text(text))
 
 
 @contextlib.contextmanager
@@ -132,6 +127,16 @@ def json_safe_metrics(metrics: dict[str, Any]) -> dict[str, float | None]:
     return out
 
 
+# An absolute path in a message (at least two components): a server's layout is nobody's business.
+_ABSOLUTE_PATH = re.compile(r"(?<![\w.~-])/(?:[^\s'\"/:]+/)+([^\s'\"/:]*)")
+
+
+def one_line_message(text: str) -> str:
+    """``text`` on one line, each absolute path shortened to ``.../<last component>``: messages
+    of points and jobs are shown to clients and stored in shared files."""
+    return " ".join(_ABSOLUTE_PATH.sub(r".../\1", str(text)).split())
+
+
 def notes_message(notes: dict[str, str]) -> str:
     """One line from the reasons why metrics are missing (empty if all are present)."""
     by_reason: dict[str, list[str]] = {}
@@ -156,29 +161,107 @@ def save_point(points_dir: str | os.PathLike, key: str, record: dict,
     if record.get("status") == "ok":
         if not isinstance(data, (bytes, bytearray, memoryview)) or bytes(data[:4]) not in NETCDF_MAGIC:
             raise ValueError(f"point {key}: the result carries no netCDF file")
-        atomic_write_bytes(point_path(points_dir, key), bytes(data))
+        atomic_write(point_path(points_dir, key), lambda tmp: tmp.write_bytes(bytes(data)))
         failed_path(points_dir, key).unlink(missing_ok=True)
     else:
         write_failure(points_dir, key, record)
     return record
 
 
+def failure_kind(record: dict) -> str:
+    """``"model"`` or ``"infrastructure"``: the kind of a failure record (records of older
+    versions have no ``kind``; their error type tells)."""
+    kind = record.get("kind")
+    if kind in ("model", "infrastructure"):
+        return kind
+    return "model" if record.get("error_type") in MODEL_FAILURES else "infrastructure"
+
+
+def reusable(record: dict | None, retry_failed: bool = False) -> bool:
+    """Whether a stored record stands instead of computing the point: a finished point always; a
+    failure of the model unless ``retry_failed``; a failure of the infrastructure never."""
+    if record is None:
+        return False
+    if record["status"] == "ok":
+        return True
+    return failure_kind(record) == "model" and not retry_failed
+
+
+def set_aside(points_dir: str | os.PathLike, key: str, path: Path, reason: str) -> Path | None:
+    """Move an unreadable point file (or failure record) ``path`` to ``points_dir/damaged/``,
+    next to a JSON record of why; returns the new path (None if the file had gone already)."""
+    damaged = Path(points_dir) / DAMAGED_SUBDIR
+    damaged.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{time.time_ns() % 10**9:09d}"
+    target = damaged / f"{path.name}.{stamp}"
+    try:
+        size = path.stat().st_size
+        os.replace(path, target)
+    except FileNotFoundError:  # set aside by another reader meanwhile
+        return None
+    write_json(damaged / f"{path.name}.{stamp}.json",
+               {"key": key, "file": path.name, "moved_to": target.name, "size_bytes": size,
+                "reason": one_line_message(reason), "moved_at": stamp})
+    import logging
+
+    logging.getLogger("airpuff.storage").warning(
+        "point %s: %s could not be used (%s); moved to %s/%s, it will be computed again",
+        key, path.name, one_line_message(reason), DAMAGED_SUBDIR, target.name)
+    return target
+
+
+def open_point(points_dir: str | os.PathLike, key: str, full: bool = True) -> xr.Dataset | None:
+    """The finished point ``key`` as a dataset in memory, or None if it has no file, or if its
+    file cannot be read or was made by another model version: such a file is moved aside
+    (:func:`set_aside`) and the point counts as missing.  ``full``: read every variable (what
+    combining does; damage anywhere in the file shows); otherwise the metrics and attributes
+    only (a truncated or overwritten file shows already when it is opened), which is what
+    deciding to reuse a point costs for each point of a new sweep."""
+    path = point_path(points_dir, key)
+    if not path.is_file():  # nothing (or something that is not a file: it is not set aside)
+        return None
+    try:
+        with open_dataset(path, engine="netcdf4") as ds:
+            missing = [name for name in METRICS if name not in ds]
+            if missing:
+                raise ValueError(f"no variable {missing[0]}")
+            ds = ds.load() if full else ds[list(METRICS)].load()
+        json.loads(ds.attrs["parameters_json"])
+    except Exception as err:  # noqa: BLE001 - any reason to distrust the file: set it aside
+        set_aside(points_dir, key, path, f"unreadable: {type(err).__name__}: {err}")
+        return None
+    found = ds.attrs.get("model_version")
+    if found != model_version():
+        set_aside(points_dir, key, path, f"made by model version {found or 'unknown'}, not "
+                                         f"{model_version()}")
+        return None
+    return ds
+
+
 def read_point(points_dir: str | os.PathLike, key: str) -> dict | None:
     """The stored record of a point (same fields as ``sweep.worker.run_point`` returns, minus the
-    per-call ones), or None if the point has not been run.  A finished point wins over a failure
-    record."""
-    path = point_path(points_dir, key)
-    if path.exists():
-        with xr.open_dataset(path, engine="netcdf4") as ds:
-            metrics = {name: float(ds[name].values) for name in METRICS if name in ds}
-            notes = {name: ds[name].attrs.get("comment", "") for name in METRICS if name in ds}
-            params = json.loads(ds.attrs["parameters_json"])
-            wall = float(ds.attrs.get("wall_time_s", float("nan")))
+    per-call ones), or None if the point has not been run or its file is unusable (moved aside by
+    :func:`open_point`).  A finished point wins over a failure record."""
+    ds = open_point(points_dir, key, full=False)
+    if ds is not None:
+        metrics = {name: float(ds[name].values) for name in METRICS}
+        notes = {name: ds[name].attrs.get("comment", "") for name in METRICS}
         return {"key": key, "status": "ok", "message": notes_message(notes),
-                "metrics": json_safe_metrics(metrics), "wall_s": wall, "params": params}
+                "metrics": json_safe_metrics(metrics),
+                "wall_s": float(ds.attrs.get("wall_time_s", float("nan"))),
+                "params": json.loads(ds.attrs["parameters_json"]),
+                "model_version": ds.attrs.get("model_version")}
     fpath = failed_path(points_dir, key)
-    if fpath.exists():
-        return json.loads(fpath.read_text())
+    if fpath.is_file():
+        try:
+            record = json.loads(fpath.read_text())
+            if not isinstance(record, dict) or record.get("status") != "failed":
+                raise ValueError("not a failure record")
+        except (ValueError, UnicodeDecodeError) as err:
+            set_aside(points_dir, key, fpath, f"unreadable: {type(err).__name__}: {err}")
+            return None
+        record["kind"] = failure_kind(record)
+        return record
     return None
 
 

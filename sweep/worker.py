@@ -28,8 +28,8 @@ from airpuff_core.params import RunParams
 from airpuff_core.result import METRICS
 
 from .numba_cache import jit_counts, jit_delta
-from .storage import (failed_path, json_safe_metrics, notes_message, point_key, point_path,
-                      read_point, write_dataset, write_failure)
+from .storage import (failed_path, json_safe_metrics, notes_message, one_line_message, point_key,
+                      point_path, read_point, reusable, write_dataset, write_failure)
 
 # Points started in this process: lets a record say whether it paid the per-process start-up
 # (imports, Numba cache loading or compiling), which is what the cold/warm start figures are about.
@@ -41,7 +41,8 @@ def run_point(params: RunParams, points_dir: str, retry_failed: bool = False,
     """Run one grid point and store it in ``points_dir``; the task ``airpuff sweep`` submits.
 
     If the point is already stored it is read back, not recomputed (a finished point is never
-    rewritten; a failed one is re-run only with ``retry_failed``).  Otherwise the solver runs and
+    rewritten; a failure of the model is re-run only with ``retry_failed``, one of the
+    infrastructure always: ``sweep.storage.reusable``).  Otherwise the solver runs and
     the result is written atomically to ``point_path`` (or the failure to ``failed_path``).
     ``key`` is the point's key (``point_key(params)`` if not given).
 
@@ -51,12 +52,14 @@ def run_point(params: RunParams, points_dir: str, retry_failed: bool = False,
          "metrics": {name: float | None},        # None where missing (always None if failed)
          "wall_s": float,                         # run time of simulate [s] (of the original run if reused)
          "computed": bool,                        # False if read back from an existing file
+         "model_version": str,                    # airpuff_core.provenance.model_version()
+         "kind": "model" | "infrastructure",      # failed only: sweep.storage.failure_kind
          "params": dict, "pid": int, "first_in_process": bool,
          "jit_compiled": int, "jit_loaded": int}  # Numba compiles / cache loads during this call
     """
     key = key or point_key(params)
     existing = read_point(points_dir, key)
-    if existing is not None and (existing["status"] == "ok" or not retry_failed):
+    if reusable(existing, retry_failed):
         existing.update(computed=False, pid=os.getpid(), first_in_process=False,
                         jit_compiled=0, jit_loaded=0)
         return existing
@@ -119,7 +122,8 @@ def _simulate_point(params: RunParams, key: str, store_ok, store_failed) -> dict
         ds.attrs["wall_time_s"] = wall
         store_ok(ds)
         record = {"key": key, "status": "ok", "message": notes_message(result.metric_notes),
-                  "metrics": json_safe_metrics(result.metrics), "wall_s": wall}
+                  "metrics": json_safe_metrics(result.metrics), "wall_s": wall,
+                  "model_version": ds.attrs["model_version"]}
     except Exception as err:  # noqa: BLE001 - every failure is recorded, the worker lives on
         record = failure_record(key, params, err, time.perf_counter() - t0)
         store_failed(record)
@@ -130,20 +134,26 @@ def _simulate_point(params: RunParams, key: str, store_ok, store_failed) -> dict
 
 
 def failure_record(key: str, params: RunParams, err: BaseException, wall: float | None) -> dict:
-    """The record of a point that raised ``err``; its message is one line."""
+    """The record of a point that raised ``err``; its message is one line.  Its ``kind`` is
+    ``model`` for the solver's own verdicts (``SimulationError``, ``ParameterError``), else
+    ``infrastructure`` (``sweep.storage.failure_kind``)."""
     from airpuff_core.errors import SimulationError
+    from airpuff_core.params import ParameterError
+    from airpuff_core.provenance import model_version
 
-    if isinstance(err, SimulationError):
+    model = isinstance(err, (SimulationError, ParameterError))
+    if model:
         message = str(err)
     else:  # not the solver's own verdict: name the exception type so a bug is recognisable
         message = f"{type(err).__name__}: {err}"
-    message = " ".join(message.split()) or type(err).__name__  # one line
+    message = one_line_message(message) or type(err).__name__
     return {"key": key, "status": "failed", "message": message,
-            "error_type": type(err).__name__,
+            "error_type": type(err).__name__, "kind": "model" if model else "infrastructure",
             "time_ms": None if getattr(err, "time_ms", None) is None else float(err.time_ms),
             "reason": None if getattr(err, "reason", None) is None else str(err.reason),
             "metrics": {name: None for name in METRICS}, "wall_s": wall,
-            "params": params.to_dict(), "software_version": __version__}
+            "params": params.to_dict(), "software_version": __version__,
+            "model_version": model_version()}
 
 
 def failure_from_exception(points_dir: str | os.PathLike, params: RunParams, err: BaseException,

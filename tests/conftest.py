@@ -29,3 +29,26 @@ def coarse_run(tmp_path_factory):
     lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
     assert len(lines) == 1, proc.stdout
     return json.loads(lines[0]), out
+
+
+@pytest.fixture(scope="module")
+def dask_client():
+    """A LocalCluster of two worker processes sharing the Numba cache, for one test module (one
+    cluster at a time on this machine)."""
+    from sweep.cluster import close_client, make_client
+    from sweep.numba_cache import shared_numba_cache_dir
+
+    shared_numba_cache_dir()  # before the solver is imported here, if it is not yet
+    c = make_client(workers=2)
+    try:
+        c.wait_for_workers(2, timeout=120)
+        yield c
+    finally:
+        close_client(c)
+
+
+@pytest.fixture
+def client(server):
+    """An HTTP client of the module's ``server`` fixture (a ``ServerProcess``), with its token."""
+    with server.client() as c:
+        yield c

@@ -18,9 +18,9 @@ from airpuff_core.params import RunParams
 from airpuff_core.result import METRICS
 from sweep.storage import failed_path, point_key, point_path
 try:  # tests/ may or may not be a package
-    from .test_api_support import ServerProcess, wait_job
+    from .test_api_support import ServerProcess, submit, wait_job
 except ImportError:
-    from test_api_support import ServerProcess, wait_job
+    from test_api_support import ServerProcess, submit, wait_job
 
 # Short coarse runs: about a second or two of solver time per point.
 OPTIONS = {"resolution": "coarse", "t_end": 1.0}
@@ -31,18 +31,6 @@ def server(tmp_path_factory):
     with ServerProcess(tmp_path_factory.mktemp("jobs") / "data", "--workers", "2").running(
             wait_runner=True) as s:
         yield s
-
-
-@pytest.fixture
-def client(server):
-    with server.client() as c:
-        yield c
-
-
-def submit(client, body) -> str:
-    r = client.post("/sweeps", json=body)
-    assert r.status_code == 202, r.text
-    return r.json()["id"]
 
 
 def file_ids(server, keys) -> dict[str, tuple[int, int]]:
@@ -221,16 +209,18 @@ def test_cancel_a_running_job(client, server):
     statuses = [p["status"] for p in recs]
     assert "pending" not in statuses and "cancelled" in statuses, statuses
     assert client.get(f"/sweeps/{job_id}/dataset").status_code == 409
-    assert client.delete(f"/sweeps/{job_id}").status_code == 200
-    # The runner still works afterwards, and a finished job cannot be cancelled.
+    # The runner still works afterwards.
     other = wait_job(client, submit(client, {**body, "IOP": [11.0], "thickness": [0.6]}))
     assert other["status"] == "done", other
-    assert client.delete(f"/sweeps/{other['id']}").status_code == 409
     # The cancelled job stayed cancelled, and its queued points were not run: at most the
     # points already on a worker (two workers) finished after the cancel.
     assert client.get(f"/sweeps/{job_id}").json()["status"] == "cancelled"
     written = file_ids(server, [p["key"] for p in recs])
     assert len(written) <= finished_at_cancel + 2, (len(written), finished_at_cancel)
+    # DELETE of an ended job (cancelled or done) removes it
+    for ended in (job_id, other["id"]):
+        assert client.delete(f"/sweeps/{ended}").status_code == 204
+        assert client.get(f"/sweeps/{ended}").status_code == 404
 
 
 def test_one_runner_per_data_dir(server):

@@ -169,3 +169,10 @@ def wait_job(client: httpx.Client, job_id: str, until=("done", "failed", "cancel
         if time.monotonic() > deadline:
             raise AssertionError(f"job {job_id} still {job['status']} after {timeout} s: {job}")
         time.sleep(poll)
+
+
+def submit(client: httpx.Client, body: dict) -> str:
+    """POST a sweep; its job id (asserts a 202)."""
+    r = client.post("/sweeps", json=body)
+    assert r.status_code == 202, r.text
+    return r.json()["id"]

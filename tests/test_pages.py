@@ -156,6 +156,27 @@ def test_cookie_opens_reads_not_writes(server, session):
     assert r.status_code == 303 and 'airpuff_session=""' in r.headers["set-cookie"]
 
 
+def test_forms_take_form_bodies_and_the_session_is_checked_before_the_body(server):
+    # the pages' forms take what a browser sends; JSON (or anything else) is refused by name
+    with httpx.Client(base_url=server.url, timeout=30) as c:
+        assert c.post("/login", data={"token": TOKEN}).status_code == 303
+        r = c.post("/new", json={"E0": "0.5"})
+        assert r.status_code == 415 and "application/x-www-form-urlencoded" in r.text, r.text
+        assert r.json()["detail"][0]["field"] == "content-type"
+    # ... and the API still takes JSON only, even with the bearer header
+    with server.client() as api:
+        r = api.post("/sweeps", data={"E0": "0.5"})
+        assert r.status_code == 415 and "application/json" in r.text, r.text
+    # without the session, a form's body is never read: a body above the limit is not the
+    # reason given (413) -- the login form is
+    with httpx.Client(base_url=server.url, timeout=30) as anon:
+        big = {"E0": "1" * 2_000_000}
+        r = anon.post("/new", data=big)
+        assert r.status_code == 303 and r.headers["location"] == "/login?next=%2Fnew"
+        # the login form is open, and its body is bounded like every other
+        assert anon.post("/login", data=big).status_code == 413
+
+
 def test_request_text_is_escaped(server):
     with httpx.Client(base_url=server.url, timeout=30) as c:
         c.post("/login", data={"token": TOKEN})

@@ -27,8 +27,7 @@ from airpuff_core import simulate
 from airpuff_core.dataset import open_dataset
 from airpuff_core.params import SWEPT
 from airpuff_core.result import METRICS
-from sweep.cluster import close_client, make_client
-from sweep.numba_cache import jit_counts, shared_numba_cache_dir
+from sweep.numba_cache import jit_counts
 from sweep.grid import SweepSpec
 from sweep.runner import run_sweep
 from sweep.storage import failed_path, point_key, point_path
@@ -37,14 +36,8 @@ SHORT = {"resolution": "coarse", "t_end": 3.0}  # ms
 
 
 @pytest.fixture(scope="module")
-def client():
-    shared_numba_cache_dir()  # before the solver is imported here, if it is not yet
-    c = make_client(workers=2)
-    try:
-        c.wait_for_workers(2, timeout=120)
-        yield c
-    finally:
-        close_client(c)
+def client(dask_client):
+    return dask_client
 
 
 @pytest.fixture(scope="module")

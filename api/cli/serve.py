@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import logging
+import os
 import socket
 import sys
 from pathlib import Path
@@ -27,8 +28,8 @@ PROG = "airpuff serve"
 def add_serve_parser(sub) -> None:
     p = sub.add_parser("serve", help="serve parameter sweeps over HTTP", description=(
         "Start the HTTP API (FastAPI under uvicorn) and the job runner that owns the Dask "
-        f"cluster. When {TOKEN_ENV} is set, every endpoint except /health requires "
-        "'Authorization: Bearer <token>'. API documentation: /docs and /openapi.json."))
+        f"cluster. When {TOKEN_ENV} is set (printable ASCII, no white space), every endpoint "
+        "except /health, /docs and /openapi.json requires 'Authorization: Bearer <token>'. API documentation: /docs and /openapi.json."))
     p.add_argument("--host", default="127.0.0.1",
                    help="address to bind (default 127.0.0.1, this machine only)")
     p.add_argument("--port", default="8000", help="TCP port (default 8000; 0 picks a free one)")
@@ -86,6 +87,24 @@ def _scheduler(text: str | None) -> str | None:
     return address
 
 
+def _check_token() -> None:
+    """The token must be sendable as it is in an HTTP header: printable ASCII, no white space
+    around it (otherwise the server would answer 401 to everyone).  Never echoes the token."""
+    token = os.environ.get(TOKEN_ENV)
+    if not token:
+        return
+    problem = None
+    if token != token.strip():
+        problem = "it has white space around it"
+    elif not token.isascii():
+        problem = "it has non-ASCII characters"
+    elif not token.isprintable() or any(c.isspace() for c in token):
+        problem = "it has white space or control characters"
+    if problem:
+        fail(PROG, ValueError(f"invalid {TOKEN_ENV}: {problem}; accepted: printable ASCII "
+                              "characters without white space (e.g. from `openssl rand -hex 32`)"))
+
+
 def _is_loopback(host: str) -> bool:
     if host == "localhost":
         return True
@@ -96,6 +115,7 @@ def _is_loopback(host: str) -> bool:
 
 
 def serve_command(args: argparse.Namespace) -> int:
+    _check_token()
     port = _int("--port", args.port, 0, 65535)
     max_points = _int("--max-points", args.max_points, 1, 10**9)
     workers = 2 if args.workers is None else _int("--workers", args.workers, 1, 1024)

@@ -18,6 +18,7 @@ import json
 import sys
 
 from airpuff_core.params import CHOICES, PARAMETERS, SWEPT, ParameterError
+from api.settings import DEFAULT_MAX_POINTS
 from sweep.grid import AXIS_SYNTAX
 
 from .common import RUN_OPTIONS, add_run_options, escape_percent, fail
@@ -46,22 +47,26 @@ def add_sweep_parser(sub) -> None:
                         "starting local workers; workers must share the file system")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"folder for the point files and sweep.nc (default {DEFAULT_OUT})")
+    p.add_argument("--max-points", default=str(DEFAULT_MAX_POINTS), metavar="N",
+                   help=f"largest grid accepted, as `airpuff serve` (default {DEFAULT_MAX_POINTS})")
     p.add_argument("--retry-failed", action="store_true",
-                   help="re-run points stored as failed (by default they keep their recorded failure)")
+                   help="re-run points stored as failed by the model (a blow-up, no "
+                        "convergence); failures of the infrastructure (a lost worker, a write "
+                        "error) are re-run anyway")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (counts and the path of sweep.nc) instead of the table")
     p.set_defaults(func=sweep_command)
 
 
-def spec_from_args(args):
-    """The SweepSpec of parsed arguments; raises ParameterError on any bad value."""
-    from sweep.grid import SweepSpec, parse_axis
+def spec_from_args(args, max_points: int = DEFAULT_MAX_POINTS):
+    """The SweepSpec of parsed arguments; raises ParameterError on any bad value, and on a grid
+    above ``max_points`` before any value of it is made."""
+    from sweep.grid import SweepSpec, axis_length, check_grid_size, parse_axis
 
-    axes = {}
-    for name in SWEPT:
-        text = getattr(args, name, None)
-        if text is not None:
-            axes[name] = parse_axis(name, text)
+    texts = {name: getattr(args, name) for name in SWEPT if getattr(args, name, None) is not None}
+    check_grid_size({name: axis_length(name, text) for name, text in texts.items()}, max_points,
+                    " (raise the limit with --max-points)")
+    axes = {name: parse_axis(name, text) for name, text in texts.items()}
     options = {}
     for name in list(RUN_OPTIONS) + list(CHOICES):
         v = getattr(args, name, None)
@@ -70,23 +75,24 @@ def spec_from_args(args):
     return SweepSpec(**axes, options=options).validate()
 
 
-def _workers(text) -> int:
+def _whole(name: str, text, low: int = 1) -> int:
     try:
         n = int(str(text))
     except ValueError:
-        raise ParameterError("workers", text, "a whole number >= 1") from None
-    if n < 1:
-        raise ParameterError("workers", text, "a whole number >= 1")
+        raise ParameterError(name, text, f"a whole number >= {low}") from None
+    if n < low:
+        raise ParameterError(name, text, f"a whole number >= {low}")
     return n
 
 
 def sweep_command(args) -> int:
+    from sweep.combine import DamagedPointFiles
     from sweep.report import SweepProgress, summary_table
     from sweep.runner import run_sweep
 
     try:
-        spec = spec_from_args(args)
-        workers = _workers(args.workers)
+        spec = spec_from_args(args, _whole("max-points", args.max_points))
+        workers = _whole("workers", args.workers)
     except ParameterError as err:
         fail(PROG, err)
     progress = None if args.json else SweepProgress()
@@ -97,7 +103,8 @@ def sweep_command(args) -> int:
     except KeyboardInterrupt:
         stopped = (130, f"interrupted; finished points are stored in {args.out}; "
                         "run the same command again to resume")
-    except (OSError, TimeoutError) as err:  # e.g. no scheduler at --scheduler, unwritable --out
+    except (OSError, TimeoutError, DamagedPointFiles) as err:
+        # e.g. no scheduler at --scheduler, unwritable --out, point files that stay unreadable
         stopped = (1, f"error: {' '.join(str(err).split())}")
     finally:
         if progress:
@@ -111,6 +118,7 @@ def sweep_command(args) -> int:
         sys.stdout.write(json.dumps({
             "path": str(outcome.path), "n_points": outcome.n_points, "ok": outcome.ok,
             "failed": outcome.failed, "computed": outcome.computed, "reused": outcome.reused,
+            "model_version": outcome.model_version,
             "wall_s": outcome.wall_s}) + "\n")
     else:
         print(summary_table(outcome))
