@@ -29,18 +29,22 @@ import math
 
 import numpy as np
 
+from .energy import EnergyBudget
 from .errors import SimulationError
 from .fluid import KAPPA, NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
+from .globe import CompliantWall, enclosed_volume_rate
+from .kernels.energy import jet_pressures
 from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_divergence, drift,
                             impose_cornea, interface_pressure_change, max_density_deviation,
                             max_speed, tait_pressure, tait_pressure_at)
-from .kernels.membrane import air_jet
+from .kernels.membrane import air_jet, cornea_polygon_volume
 from .kernels.mfpm import hyperviscous_flow_increments
 from .kernels.nodes import AXIS, CORNEA, WALL
 from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from .params import RunParams
 from .shell import build_shell
+from .viscoelastic import ViscoelasticHistory
 
 # dt <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2, unstable at 2.0 (measured)
 HV_SAFETY = 1.4
@@ -108,6 +112,10 @@ class CoupledModel:
         self.rho = np.full(n, si.rho_fluid)
         self.mass = si.rho_fluid * ch.volume  # fixed particle masses [kg]
         self._start_cornea_at_rest()
+        self._build_globe()
+        # the cornea starts fully relaxed (E0 is the equilibrium modulus, docs/model.md section 10)
+        self.viscoelastic = (ViscoelasticHistory(self.cornea_model, [si.ve_g], [si.ve_tau_s],
+                                                 self.X, self.Y) if si.ve_g > 0.0 else None)
         self.t = 0.0
         self.v_prev = 0.0
         self.v_running = 0.0
@@ -152,6 +160,9 @@ class CoupledModel:
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self._dv_new = np.zeros((2, n, 5))
+        # jet on the cornea at t^n and t^{n+1}, fluid pressure [Pa]: work arrays of the budget
+        self._energy_work = (np.empty(ch.phi_cornea.shape[0]), np.empty(ch.phi_cornea.shape[0]),
+                             np.empty(n))
         N = self.X.shape[0]
         self._cornea_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_trial = (np.empty(N), np.empty(N))  # interface pressure estimates [Pa]
@@ -163,6 +174,11 @@ class CoupledModel:
         self.dt_hyperviscous = math.inf  # s, stability limit of the hyperviscosity (time_step)
         self.dt_limits = {}  # s: the acoustic, viscous and hyperviscous limits of the last step
         self.max_cond = float(self.ops_n.cond.max())
+        self.budget = EnergyBudget(self.cornea_model, self.viscoelastic, self.mass, si.rho_fluid,
+                                   si.p0_Pa, si.tait_gamma)
+        self.budget.start(self.X, self.Y, self.VX, self.VY, self.vx, self.vy, self.rho, self.c,
+                          self._overstress())
+        self._c_last = self.c
 
     def _start_cornea_at_rest(self):
         """The cornea starts in the exact discrete equilibrium under IOP (and p_a(0) with
@@ -181,6 +197,23 @@ class CoupledModel:
         self.y[ch.cornea_nodes] = Y
         self.apex_y0 = Y[0]
         self.n_apex_fit = apex_fit_nodes(X)
+
+    def _build_globe(self):
+        """The compliant walls (``globe = compliant``, globe.py), or None for rigid ones."""
+        si, ch = self.si, self.chamber
+        # the closing point of the polygon whose volume the cornea encloses
+        self.volume_axis_y = 0.0 if self.params.geometry == "sector" else float(self.Y[-1])
+        self.cornea_volume0 = cornea_polygon_volume(self.X, self.Y, self.volume_axis_y)
+        self.wall = None
+        self._wall_trial = None
+        if self.params.globe != "compliant":
+            return
+        x_l = si.R_m * math.sin(si.alpha0_rad)
+        x_c = si.r_post_m * math.sin(si.alpha0_rad) if self.params.geometry == "sector" else 0.0
+        self.wall = CompliantWall(ch.x, ch.y, np.flatnonzero(ch.kind == WALL), x_c, x_l,
+                                  si.ocular_rigidity_per_m3, si.p0_Pa, si.rho_fluid, self.mass,
+                                  si.tait_gamma)
+        self.wall.volume_offset = self.density_volume() - self.chamber_volume()
 
     # -- time step --------------------------------------------------------------------------
     def time_step(self):
@@ -307,6 +340,9 @@ class CoupledModel:
         cornea_model = self.cornea_model
         n_sub = cornea_model.substeps(self.X, self.Y, dt)
         self.last_substeps = n_sub
+        ve = self.viscoelastic
+        if ve is not None:
+            ve.set_substep(dt / n_sub)
         # pressure at t^n with this step's c (the EOS changes with c at fixed density)
         p_interface_n = self._p_interface_n
         tait_pressure_at(self.cornea_nodes, self.rho, rho0, p0, c, gam, p_interface_n)
@@ -320,8 +356,12 @@ class CoupledModel:
             Y[:] = self.Y
             VX[:] = self.VX
             VY[:] = self.VY
-            cornea_model.advance(X, Y, VX, VY, p_interface_n, p_est, self.t, dt, n_sub, self.jet)
+            history = None if ve is None else ve.begin_trial()
+            cornea_model.advance(X, Y, VX, VY, p_interface_n, p_est, self.t, dt, n_sub, self.jet,
+                                 history)
             impose_cornea(cornea, X, Y, VX, VY, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"])
+            if self.wall is not None:
+                self._wall_trial = self._impose_wall(X, Y, VX, VY, dt)
             # only the cornea's density enters the coupling: the operators of the cornea nodes
             # suffice (every node, with reuse=False), the full field follows convergence
             self._velocity_derivatives(self.ops_new, w["x_new"], w["y_new"], w["vx_new"],
@@ -350,12 +390,26 @@ class CoupledModel:
         advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
                         w["rho_new"])
 
+    def _impose_wall(self, X, Y, VX, VY, dt):
+        """Move the compliant walls where the globe's law puts them for the cornea state
+        (X, Y, VX, VY) at t^{n+1} (globe.py), in the trial fluid state; returns the wall state
+        (displacement, speed, globe pressure)."""
+        w = self._work
+        volume_change = cornea_polygon_volume(X, Y, self.volume_axis_y) - self.cornea_volume0
+        volume_rate = enclosed_volume_rate(X, Y, VX, VY, self.volume_axis_y)
+        state = self.wall.wall_state(volume_change, volume_rate, self.c, dt)
+        self.wall.impose(state[0], state[1], w["y_new"], w["vx_new"], w["vy_new"])
+        return state
+
     def commit(self, dt):
         """Part 3: the coupled state becomes the state at t^{n+1} (buffers are swapped, not
         copied); the interface pressure and the speeds that set the next sound speed follow.
         Raises SimulationError when the new state has blown up."""
         si = self.si
         w = self._work
+        self._account_energy(dt)
+        if self.viscoelastic is not None:
+            self.viscoelastic.commit()
         cornea_n = (self.X, self.Y, self.VX, self.VY)
         self.X, self.Y, self.VX, self.VY = self._cornea_trial
         self._cornea_trial = cornea_n
@@ -368,6 +422,10 @@ class CoupledModel:
         self.dv, self._dv_new = self._dv_new, self.dv
         self.ops_n, self.ops_new = self.ops_new, self.ops_n
         self.t += dt
+        if self.wall is not None:
+            self.wall.displacement = self._wall_trial[0]  # chamber_volume() sees the new wall
+            self.wall.commit(self._wall_trial, self.density_volume(), self.chamber_volume(), dt,
+                             self.c)
         vmax = max_speed(self.vx, self.vy)
         self.v_prev = vmax
         self.v_running = max(self.v_running, vmax)
@@ -380,6 +438,51 @@ class CoupledModel:
         if not math.isfinite(dev) or dev > BLOWUP_DENSITY:
             raise SimulationError(f"fluid blew up at t = {self.t * 1e3:.4f} ms: density deviates "
                                   f"by {dev:.3g} from the reference", self.t * 1e3, "blow-up")
+
+    def _overstress(self):
+        return None if self.viscoelastic is None else self.viscoelastic.overstress
+
+    def _account_energy(self, dt):
+        """Add the work terms of the step just coupled to the energy budget (energy.py): the
+        state at t^n is still the model's, the coupled one in the trial and work arrays."""
+        si = self.si
+        w = self._work
+        X, Y = self._cornea_trial[0], self._cornea_trial[1]
+        phi = self.chamber.phi_cornea
+        jet_n, jet_new, p_n = self._energy_work
+        jet_pressures(self.t, phi, self.jet, jet_n)
+        jet_pressures(self.t + dt, phi, self.jet, jet_new)
+        tait_pressure(self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
+        globe = 0.0 if self.wall is None else self._globe_work()
+        ve = self.viscoelastic
+        self.budget.account_step(dt, jet_n, jet_new, self.X, self.Y, X, Y, self._overstress(),
+                                 None if ve is None else ve.trial_overstress, self.kind, self.x,
+                                 self.vx, self.vy, w["vx_new"], w["vy_new"], self.dv, self.rho,
+                                 si.mu, w["hv_vx"], w["hv_vy"], w["hv_rho"], p_n, self._c_last,
+                                 self.c, globe)
+        self._c_last = self.c
+
+    def _globe_work(self):
+        """Work [J] of the fluid on the compliant walls over the step just coupled: the mean wall
+        pressure of its two ends times the volume the walls gave way by."""
+        si, wall = self.si, self.wall
+        p_wall = np.empty(wall.nodes.shape[0])
+        tait_pressure_at(wall.nodes, self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma,
+                         p_wall)
+        p_start = wall.mean_pressure(p_wall)
+        tait_pressure_at(wall.nodes, self._work["rho_new"], si.rho_fluid, si.p0_Pa, self.c,
+                         si.tait_gamma, p_wall)
+        p_end = wall.mean_pressure(p_wall)
+        return 0.5 * (p_start + p_end) * wall.area * (self._wall_trial[0] - wall.displacement)
+
+    def apex_moment(self):
+        """Meridional bending moment at the apex [N m/m], with its viscoelastic overstress."""
+        return self.cornea_model.apex_moment(self.X, self.Y, self._overstress())
+
+    def energy_terms(self):
+        """The energy budget's terms at the current state [uJ] (energy.py)."""
+        return self.budget.terms(self.X, self.Y, self.VX, self.VY, self.vx, self.vy, self.rho,
+                                 self.c, self._overstress())
 
     # -- quantities of the current state ----------------------------------------------------
     def apex_curvature(self):
@@ -394,10 +497,20 @@ class CoupledModel:
         """Air-jet pressure at the apex now, eq. (11) [Pa]."""
         return air_jet(self.t, 0.0, *self.jet)
 
+    def wall_volume_change(self):
+        """Volume [m^3] by which the compliant walls have given way (0 for a rigid globe)."""
+        return 0.0 if self.wall is None else self.wall.area * self.wall.displacement
+
+    def globe_pressure(self):
+        """Pressure of the globe's law for the volume the cornea has pushed in [Pa] (the IOP for
+        a rigid globe)."""
+        return self.si.p0_Pa if self.wall is None else self.wall.pressure
+
     def chamber_volume(self):
-        """Volume of the chamber bounded by the cornea [m^3]."""
+        """Volume of the chamber bounded by the cornea and the walls [m^3]."""
         si = self.si
-        return chamber_volume(self.params.geometry, self.X, self.Y, si.r_post_m, si.alpha0_rad)
+        return (chamber_volume(self.params.geometry, self.X, self.Y, si.r_post_m, si.alpha0_rad)
+                + self.wall_volume_change())
 
     def density_volume(self):
         """Chamber volume implied by the density field, sum m_j / rho_j [m^3]."""

@@ -7,6 +7,13 @@ the apex at those instants (eq. 11 evaluated exactly).  Then, as in the paper (s
 
     CH = P1 - P2,   IOPg = 0.5 (P1 + P2),   IOPcc = P1 - 0.43 P2
 
+and, beside the paper's IOPcc, the Ocular Response Analyzer's published forms (Luce, "Methodology
+for cornea compensated IOP and corneal resistance factor for an Ocular Response Analyzer", IOVS
+47 (2006) ARVO E-Abstract 2266; as quoted by Medeiros and Weinreb, J. Glaucoma 15 (2006) 364,
+and Kotecha et al., IOVS 47 (2006) 5337), without the device's calibration constants:
+
+    CRF = P1 - 0.7 P2   (corneal resistance factor),   IOPcc_ora = P2 - 0.43 P1
+
 DA (deformation amplitude) and t_HC are the maximum of the stored ``apex_displacement`` history
 and its time; the peak inward/outward apex speeds come from ``apex_velocity``.  A run in which
 the cornea never applanates is not an error: the applanation metrics are NaN with a reason.
@@ -33,8 +40,8 @@ def _crossings(t, f, downward):
 def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms):
     """Return (metrics, notes, extra diagnostics)."""
     nan = math.nan
-    m = {k: nan for k in ("P1", "P2", "CH", "IOPg", "IOPcc", "t_A1", "t_A2", "t_HC", "hc_delay",
-                          "DA", "v_in_max", "v_out_max")}
+    m = {k: nan for k in ("P1", "P2", "CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora", "t_A1", "t_A2",
+                          "t_HC", "hc_delay", "DA", "v_in_max", "v_out_max")}
     notes = {}
     extra = {}
     disp = hist["apex_displacement"]
@@ -72,7 +79,9 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         m["CH"] = m["P1"] - m["P2"]
         m["IOPg"] = 0.5 * (m["P1"] + m["P2"])
         m["IOPcc"] = m["P1"] - 0.43 * m["P2"]
+        m["CRF"] = m["P1"] - 0.7 * m["P2"]
+        m["IOPcc_ora"] = m["P2"] - 0.43 * m["P1"]
     else:
-        for k in ("CH", "IOPg", "IOPcc"):
+        for k in ("CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora"):
             notes[k] = "needs both applanations"
     return m, notes, extra

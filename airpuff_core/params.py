@@ -20,6 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 
 MMHG_PA = 133.322  # Pa per mmHg
+UL_M3 = 1e-9  # m^3 per microlitre
 
 # The time histories hold t_end / output_interval + 1 samples of every history; more than this
 # many intervals cost minutes and gigabytes for one run (3e6 samples: 48 s, 0.5 GB).
@@ -44,10 +45,15 @@ def parse_decimal(text: str) -> float:
 PRESTRETCH_MAX = 10.0
 
 # The choices each ``model`` preset makes; an option given explicitly overrides its preset.
-MODEL_PRESETS: dict[str, dict[str, str]] = {
-    "paper": {"cornea": "membrane"},
-    "clinical": {"cornea": "shell"},
+MODEL_PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {"cornea": "membrane", "globe": "rigid", "ve_g": 0.0, "ve_tau": 10.0},
+    # the shell, the compliant globe, and the viscoelasticity that Kling et al. (PLoS ONE 2014,
+    # e104904, table 3) fitted to human in-vivo air-puff deformation (docs/model.md section 10)
+    "clinical": {"cornea": "shell", "globe": "compliant", "ve_g": 0.3, "ve_tau": 10.0},
 }
+# the numeric parameters a preset sets: None (not given) until ``RunParams.validate``
+PRESET_PARAMETERS = tuple(name for name in MODEL_PRESETS["clinical"]
+                          if not isinstance(MODEL_PRESETS["clinical"][name], str))
 
 
 class ParameterError(ValueError):
@@ -136,6 +142,16 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
         _p("cfl", "1", 0.6, 0.0, 0.6,
            "acoustic CFL number: dt = cfl * h_min / (c + v_max) (stable to 0.72 at rest)"),
+        _p("ve_g", "1", 0.0, 0.0, 0.95,
+           "relative modulus g of the one-term Prony series of the cornea's viscoelasticity, "
+           "G(t) = 1 - g (1 - exp(-t/ve_tau)), E0 the relaxed modulus; 0 is elastic; set by the "
+           "model preset (paper 0, clinical 0.3: Kling et al. 2014)", low_inc=True),
+        _p("ve_tau", "ms", 10.0, 0.0, 1000.0,
+           "relaxation time of the cornea's viscoelasticity; set by the model preset (10: Kling "
+           "et al. 2014)"),
+        _p("ocular_rigidity", "1/uL", 0.0126, 0.0, 0.1,
+           "Friedenwald's ocular rigidity K of the compliant globe, dP/dV = ln(10) K P "
+           "(globe=compliant; in-vivo mean 0.0126, Pallikaris et al. 2005)"),
     ]
 }
 
@@ -145,6 +161,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "layout": ("isotropic", "polar"),
     "c_rule": ("running_max", "per_step", "fixed"),
     "jet_start": ("as_written", "equilibrium"),
+    "globe": ("rigid", "compliant"),
     "hyperviscosity_operator": ("brookshaw", "consistent", "consistent_velocity"),
     "model": tuple(MODEL_PRESETS),
     "cornea": ("membrane", "shell"),
@@ -157,6 +174,7 @@ CHOICE_DEFAULTS = {
     "layout": "isotropic",
     "c_rule": "running_max",
     "jet_start": "as_written",
+    "globe": None,
     "hyperviscosity_operator": "brookshaw",
     "model": "paper",
     "cornea": None,
@@ -168,12 +186,14 @@ CHOICE_DESCRIPTIONS = {
     "layout": "fluid node layout: isotropic rings or the paper's polar lattice",
     "c_rule": "sound-speed rule: running_max of v_max, per_step (paper), or fixed c = c0",
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
+    "globe": "rigid chamber walls (paper) or compliant: the walls recede with Friedenwald's "
+             "pressure-volume law (ocular_rigidity)",
     "hyperviscosity_operator": "operator H of the hyperviscosity: brookshaw (L^3, the paper "
                                "reproduction), consistent (K* L K on density and velocity, zero "
                                "on linear fields at walls too) or consistent_velocity (K* L K on "
                                "velocity, L^3 on density)",
-    "model": "preset: paper (membrane cornea) or clinical (shell cornea); explicit options "
-             "override it",
+    "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shell cornea, "
+             "compliant globe, viscoelastic: ve_g 0.3, ve_tau 10 ms); explicit options override it",
     "cornea": "membrane (the paper's Fung membrane) or shell (the membrane with bending rigidity "
               "D = E0 h^3/(12 (1 - nu^2)), Kirchhoff-Love, large rotations)",
     "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
@@ -250,6 +270,9 @@ class SIParams:
     hyperviscosity: float  # strength gamma of the hyperviscosity
     output_interval_s: float  # interval of the stored time histories
     cfl: float  # acoustic CFL number
+    ve_g: float  # relative modulus of the Prony term (0: elastic)
+    ve_tau_s: float  # its relaxation time
+    ocular_rigidity_per_m3: float  # Friedenwald's K of the compliant globe
 
     def jet(self) -> np.ndarray:
         """(pmax [Pa], a, b, T [s], t0 [s]): the arguments of the air-jet kernel, eq. (11)."""
@@ -284,11 +307,15 @@ class RunParams:
     hyperviscosity: float = PARAMETERS["hyperviscosity"].default
     output_interval: float = PARAMETERS["output_interval"].default
     cfl: float = PARAMETERS["cfl"].default
+    ve_g: float | None = None  # from the model preset unless given
+    ve_tau: float | None = None  # from the model preset unless given
+    ocular_rigidity: float = PARAMETERS["ocular_rigidity"].default
     resolution: str = CHOICE_DEFAULTS["resolution"]
     geometry: str = CHOICE_DEFAULTS["geometry"]
     layout: str = CHOICE_DEFAULTS["layout"]
     c_rule: str = CHOICE_DEFAULTS["c_rule"]
     jet_start: str = CHOICE_DEFAULTS["jet_start"]
+    globe: str = CHOICE_DEFAULTS["globe"]
     hyperviscosity_operator: str = CHOICE_DEFAULTS["hyperviscosity_operator"]
     model: str = CHOICE_DEFAULTS["model"]
     cornea: str | None = CHOICE_DEFAULTS["cornea"]
@@ -320,10 +347,11 @@ class RunParams:
 
     # -- validation -------------------------------------------------------------------------
     def validate(self) -> None:
-        if self.model in MODEL_PRESETS:
-            for name, value in MODEL_PRESETS[self.model].items():
-                if getattr(self, name) is None:
-                    object.__setattr__(self, name, value)
+        if self.model not in MODEL_PRESETS:  # before the preset fills its options
+            raise ParameterError("model", self.model, "one of " + ", ".join(MODEL_PRESETS))
+        for name, value in MODEL_PRESETS[self.model].items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
         for name, spec in PARAMETERS.items():
             object.__setattr__(self, name, spec.check(getattr(self, name)))
         for name, allowed in CHOICES.items():
@@ -406,4 +434,7 @@ class RunParams:
             hyperviscosity=self.hyperviscosity,
             output_interval_s=self.output_interval * 1e-3,
             cfl=self.cfl,
+            ve_g=self.ve_g,
+            ve_tau_s=self.ve_tau * 1e-3,
+            ocular_rigidity_per_m3=self.ocular_rigidity / UL_M3,
         )

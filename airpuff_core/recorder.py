@@ -38,6 +38,10 @@ def probe(model: CoupledModel) -> dict[str, float]:
         "jet_pressure_apex": model.jet_pressure_apex() / MMHG_PA,
         "fluid_pressure_apex": model.p_interface[0] / MMHG_PA,
         "chamber_volume": model.chamber_volume() * 1e9,
+        "wall_volume_change": model.wall_volume_change() * 1e9,
+        "globe_pressure": model.globe_pressure() / MMHG_PA,
+        "apex_bending_moment": model.apex_moment() * 1e3,
+        **model.energy_terms(),
         "coupling_iterations": float(model.last_iterations),
         "sound_speed": model.c,
     }

@@ -26,6 +26,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "CH": ("mmHg", "corneal hysteresis P1 - P2"),
     "IOPg": ("mmHg", "Goldmann-equivalent IOP 0.5 (P1 + P2)"),
     "IOPcc": ("mmHg", "corneal-compensated IOP P1 - 0.43 P2 (paper's definition)"),
+    "CRF": ("mmHg", "corneal resistance factor P1 - 0.7 P2 (ORA, Luce 2006)"),
+    "IOPcc_ora": ("mmHg", "corneal-compensated IOP P2 - 0.43 P1 (ORA, Luce 2006)"),
     "t_A1": ("ms", "time of the first applanation"),
     "t_A2": ("ms", "time of the second applanation"),
     "t_HC": ("ms", "time of highest concavity (maximum apex displacement)"),
@@ -43,6 +45,22 @@ HISTORIES: dict[str, tuple[str, str]] = {
     "jet_pressure_apex": ("mmHg", "air-jet pressure at the apex"),
     "fluid_pressure_apex": ("mmHg", "fluid pressure at the apex"),
     "chamber_volume": ("mm^3", "volume of the anterior chamber"),
+    "wall_volume_change": ("mm^3", "volume by which the compliant walls have given way "
+                           "(0 with globe=rigid)"),
+    "globe_pressure": ("mmHg", "pressure of the globe's pressure-volume law for the volume the "
+                       "cornea has pushed in (the IOP with globe=rigid)"),
+    "apex_bending_moment": ("mN", "meridional bending moment M_s at the apex, per unit length "
+                            "(N m/m; 0 for the membrane)"),
+    # the energy budget, cumulative from t = 0 (energy.py)
+    "jet_work": ("uJ", "work of the air jet on the cornea"),
+    "kinetic_energy": ("uJ", "kinetic energy of cornea and fluid, change since t = 0"),
+    "elastic_energy": ("uJ", "stored energy (cornea strain and viscoelastic overstress, fluid "
+                       "compression), change since t = 0"),
+    "tissue_dissipation": ("uJ", "energy dissipated by the cornea's viscoelasticity"),
+    "fluid_dissipation": ("uJ", "energy removed by the fluid's viscosity and hyperviscosity"),
+    "globe_work": ("uJ", "work of the fluid on the compliant walls (0 with globe=rigid)"),
+    "energy_residual": ("uJ", "jet work minus the terms above, plus the energy that sound-speed "
+                        "changes add: what the discretisation does not conserve"),
     "coupling_iterations": ("1", "Dirichlet-Neumann iterations in the last solver step"),
     "sound_speed": ("m/s", "artificial sound speed c"),
 }

@@ -27,11 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .kernels.membrane import add_pressure_loads, max_wave_speed
-from .kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell,
+from .kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell, bending_moments,
                             max_bending_frequency, shell_energy, shell_internal_forces,
-                            shell_work)
+                            shell_strains, shell_work, work_rows)
 from .membrane import MEMBRANE_SAFETY, MembraneModel, build_membrane
 
+# the history arguments of the shell kernels without viscoelasticity (not read)
+NO_HISTORY = (np.zeros((4, 1)), np.zeros((1, 4, 1)), np.ones(1), np.zeros(1))
 LIMBUS_CONDITIONS = {"clamped": LIMBUS_CLAMPED, "pinned": LIMBUS_PINNED}
 
 
@@ -87,9 +89,22 @@ class ShellModel(MembraneModel):
         Fx = np.empty_like(X)
         Fy = np.empty_like(Y)
         shell_internal_forces(X, Y, self.L0, self.S0, self.A0, *self.bending_args(), self.Ebar,
-                              self.nu, self.k, self.D, self.work, Fx, Fy)
+                              self.nu, self.k, self.D, self.work, Fx, Fy, 0, *NO_HISTORY)
         add_pressure_loads(X, Y, q, Fx, Fy)
         return Fx, Fy
+
+    def apex_moment(self, X, Y, overstress=None):
+        """Meridional bending moment M_s at the apex [N m/m] at positions (X, Y) [m]: the bending
+        law's, plus the viscoelastic overstress (``ViscoelasticHistory.overstress``) if given;
+        0 for the membrane."""
+        if self.D == 0.0:
+            return 0.0
+        E1, E2, psi, _, _, _, Ks, Kt, Ms, Mt = work_rows(self.work, self.n)
+        shell_strains(X, Y, self.L0, self.S0, self.psi_ref, self.dual_length, self.x_ref,
+                      self.limbus, self.D, E1, E2, psi, Ks, Kt)
+        bending_moments(Ks, Kt, self.D, self.nu, Ms, Mt)
+        extra = 0.0 if overstress is None else float(overstress[:, 2, 0].sum())
+        return float(Ms[0]) + extra
 
     def energy(self, X, Y):
         """(membrane, bending) elastic energy [J] at positions (X, Y) [m]."""
@@ -117,14 +132,17 @@ class ShellModel(MembraneModel):
             return super().substeps(X, Y, dt)
         return max(1, int(math.ceil(dt / self.stable_substep(X, Y))))
 
-    def advance(self, X, Y, VX, VY, p_start, p_end, t_start, dt, n_sub, jet):
+    def advance(self, X, Y, VX, VY, p_start, p_end, t_start, dt, n_sub, jet, history=None):
         """Advance the state (X, Y [m], VX, VY [m/s], in place) from t_start to t_start + dt [s] in
         n_sub Verlet sub-steps, with the fluid pressure on the cornea going linearly from p_start
-        to p_end [Pa] and the air jet ``jet`` (``SIParams.jet()``) outside."""
+        to p_end [Pa] and the air jet ``jet`` (``SIParams.jet()``) outside.  ``history``: the
+        viscoelastic trial history (``ViscoelasticHistory.begin_trial()``), advanced in place,
+        or None for an elastic cornea."""
         Fx, Fy, q = self._forces
         advance_shell(X, Y, VX, VY, self.mass, self.phi, self.L0, self.S0, self.A0,
                       *self.bending_args(), self.Ebar, self.nu, self.k, self.D, p_start, p_end,
-                      t_start, dt, n_sub, jet, self.work, Fx, Fy, q)
+                      t_start, dt, n_sub, jet, self.work, Fx, Fy, q, history is not None,
+                      *(NO_HISTORY if history is None else history))
 
 
 def build_shell(phi, R, p0, E0, h, nu, k, rho_c, limbus="clamped", bending=True) -> ShellModel:

@@ -19,6 +19,7 @@ from airpuff_core.params import (
     CHOICES,
     INT_PARAMETERS,
     PARAMETERS,
+    PRESET_PARAMETERS,
     SWEPT,
     ParamSpec,
     choice_default_text,
@@ -57,6 +58,10 @@ def _swept_field(spec: ParamSpec, max_points: int) -> tuple[Any, Any]:
 
 def _option_field(spec: ParamSpec) -> tuple[Any, Any]:
     desc = f"{spec.description} [{_unit_text(spec)}], {spec.accepted()}"
+    if spec.name in PRESET_PARAMETERS:  # omitted: the value of the ``model`` preset
+        return (Optional[_number(spec)], Field(  # type: ignore[valid-type]
+            default=None, description=desc + "; default: from the model preset",
+            json_schema_extra={"x-unit": spec.unit}))
     return (_number(spec), Field(default=spec.default, description=desc,
                                  json_schema_extra={"x-unit": spec.unit}))
 

@@ -17,6 +17,7 @@ from airpuff_core.params import (
     CHOICES,
     INT_PARAMETERS,
     PARAMETERS,
+    PRESET_PARAMETERS,
     SWEPT,
     ParameterError,
     choice_default_text,
@@ -42,9 +43,12 @@ def option_names() -> list[str]:
 
 
 def defaults() -> dict[str, str]:
-    """The form's initial text: every field at its default."""
-    values = {name: f"{PARAMETERS[name].default:g}" for name in PARAMETERS}
-    values.update(CHOICE_DEFAULTS)
+    """The form's initial text: every field at its default; the fields that the ``model``
+    preset sets are left empty (empty fields are left out of the request, and the preset fills
+    them)."""
+    values = {name: "" if name in PRESET_PARAMETERS else f"{PARAMETERS[name].default:g}"
+              for name in PARAMETERS}
+    values.update({name: value or "" for name, value in CHOICE_DEFAULTS.items()})
     values.update({name: str(spec[0]) for name, spec in INT_PARAMETERS.items()})
     return values
 

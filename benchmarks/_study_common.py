@@ -26,7 +26,7 @@ PAPER = {"P1": 21.96, "P2": 6.82, "CH": 15.14, "IOPg": 14.39, "IOPcc": 19.03,
          "t_A1": 8.35, "t_A2": 24.3, "DA": math.nan}
 
 SHOWN = ("P1", "P2", "CH", "DA", "t_A1", "t_A2")
-EXTRA = ("IOPg", "IOPcc", "t_HC", "v_in_max", "v_out_max")
+EXTRA = ("IOPg", "IOPcc", "CRF", "IOPcc_ora", "t_HC", "v_in_max", "v_out_max")
 DIAG = ("fluid_pressure_apex_at_A1", "fluid_pressure_apex_at_A2", "applanation_crossings_down",
         "applanation_crossings_up", "max_volume_mismatch", "steps", "dt_mean_us", "n_fluid",
         "n_cornea", "wall_s")

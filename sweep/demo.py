@@ -1,9 +1,13 @@
-"""The default sweep of ``make demo``: a small grid at coarse resolution on 2 local workers.
+"""The default sweep of ``make demo``: the paper's and the clinical model on a small grid.
 
     python -m sweep.demo --out demo_out
 
-Writes ``OUT/sweep.nc`` (layout: ``sweep.combine``; the per-point files: docs/model.md, section 7)
-and ``OUT/metrics_vs_IOP.png`` (IOPg, CH and DA against IOP, one line per E0) and prints where they are.  Running it again reuses the stored points.
+The same 2 E0 x 3 IOP grid at coarse resolution, once with the paper's model (membrane cornea,
+rigid globe, elastic) and once with the clinical preset (shell cornea, compliant globe,
+viscoelastic; docs/model.md), on one local Dask cluster of 2 workers.  Writes
+``OUT/paper/sweep.nc`` and ``OUT/clinical/sweep.nc`` (layout: ``sweep.combine``; the per-point files
+share ``OUT/points``) and ``OUT/metrics_vs_IOP.png`` (IOPg, CH and DA against IOP, one line per E0,
+one row per model) and prints where they are.  Running it again reuses the stored points.
 """
 
 from __future__ import annotations
@@ -13,16 +17,17 @@ import sys
 
 from .grid import SweepSpec
 
-# 2 x 3 points at the paper's jet (pmax 10 kPa) and corneal thickness (0.5 mm); a coarse run of the
-# full 35 ms took about 1 min here, so on 2 workers the grid takes about 3-4 minutes.
+# 2 x 3 points at the paper's jet (pmax 10 kPa) and corneal thickness (0.5 mm), for each model; a
+# coarse run of the full 35 ms takes a few seconds, so both grids take well under a minute.
 DEMO_E0 = [0.3, 0.6]  # MPa
 DEMO_IOP = [10.0, 16.0, 22.0]  # mmHg
 DEMO_OPTIONS = {"resolution": "coarse"}
+DEMO_MODELS = ("paper", "clinical")
 
 
-def demo_spec() -> SweepSpec:
+def demo_spec(model: str = "paper") -> SweepSpec:
     return SweepSpec(E0=DEMO_E0, IOP=DEMO_IOP, thickness=[0.5], pmax=[10.0],
-                     options=dict(DEMO_OPTIONS)).validate()
+                     options={**DEMO_OPTIONS, "model": model}).validate()
 
 
 def main(argv=None) -> int:
@@ -37,26 +42,55 @@ def main(argv=None) -> int:
     from .report import SweepProgress, summary_table
     from .runner import run_sweep
 
-    spec = demo_spec()
+    from pathlib import Path
+
+    from .cluster import close_client, make_client
+
+    specs = {model: demo_spec(model) for model in DEMO_MODELS}
+    n_points = sum(spec.n_points for spec in specs.values())
     print(f"demo sweep: E0 {DEMO_E0} MPa x IOP {DEMO_IOP} mmHg, thickness 0.5 mm, pmax 10 kPa, "
-          f"coarse resolution, {spec.n_points} points on {args.workers} local workers -> {args.out}/",
-          flush=True)
-    progress = SweepProgress()
+          f"coarse resolution, models {', '.join(DEMO_MODELS)}: {n_points} points on "
+          f"{args.workers} local workers -> {args.out}/", flush=True)
+    out = Path(args.out)
+    outcomes = {}
+    client = None
     try:
-        outcome = run_sweep(spec, args.out, workers=args.workers, progress=progress)
+        for model, spec in specs.items():
+            progress = SweepProgress()
+            try:
+                if client is None and not all(_stored(spec, out)):
+                    client = make_client(workers=args.workers)
+                outcomes[model] = run_sweep(spec, out / model, client=client, progress=progress,
+                                            points_dir=out / "points")
+            finally:
+                progress.close()
     except KeyboardInterrupt:
-        progress.close()
         print(f"interrupted; finished points are stored in {args.out}/points; run again to resume",
               file=sys.stderr)
         return 130
-    progress.close()
-    print(summary_table(outcome))
-    with xr.open_dataset(outcome.path) as ds:
-        png = plot_metrics_vs_iop(ds.load(), outcome.out_dir / "metrics_vs_IOP.png")
-    print(f"\nsweep dataset: {outcome.path.resolve()}")
+    finally:
+        if client is not None:
+            close_client(client)
+    for model, outcome in outcomes.items():
+        print(f"\n{model} model:")
+        print(summary_table(outcome))
+    datasets = {}
+    for model, outcome in outcomes.items():
+        with xr.open_dataset(outcome.path) as ds:
+            datasets[model] = ds.load()
+    png = plot_metrics_vs_iop(datasets, out / "metrics_vs_IOP.png")
+    for model, outcome in outcomes.items():
+        print(f"\nsweep dataset ({model}): {outcome.path.resolve()}")
     print(f"figure:        {png.resolve()}")
-    print(f"explore it:    python examples/analyze_sweep.py {outcome.path}")
-    return 0 if outcome.ok else 1
+    print(f"explore it:    python examples/analyze_sweep.py {outcomes['clinical'].path}")
+    return 0 if all(o.ok for o in outcomes.values()) else 1
+
+
+def _stored(spec: SweepSpec, out) -> list[bool]:
+    """Whether each point of ``spec`` is stored in ``out/points`` already."""
+    from .storage import point_key, read_point
+
+    return [read_point(out / "points", point_key(p)) is not None for p in spec.validated_points()]
 
 
 if __name__ == "__main__":

@@ -79,26 +79,32 @@ def _cell_edges(centres: np.ndarray) -> np.ndarray:
     return np.concatenate([[2 * centres[0] - mid[0]], mid, [2 * centres[-1] - mid[-1]]])
 
 
-def plot_metrics_vs_iop(ds, path, thickness=None, pmax=None) -> Path:
+def plot_metrics_vs_iop(datasets, path, thickness=None, pmax=None) -> Path:
     """IOPg, CH and DA against IOP, one line per E0, written as a PNG to ``path``.
 
-    Lines are drawn at one thickness and one pmax (default: the first of each axis; a title says
-    which).  Failed points and missing metrics are NaN and leave gaps; failed points are marked
-    with an x on the IOP axis so a gap is not mistaken for a plotting error.
+    ``datasets``: one sweep dataset, or a mapping {label: dataset} drawn as one row of panels
+    per dataset (e.g. the paper's and the clinical model side by side).  Lines are drawn at one
+    thickness and one pmax (default: the first of each axis; a title says which).  Failed points
+    and missing metrics are NaN and leave gaps; failed points are marked with an x on the IOP
+    axis so a gap is not mistaken for a plotting error.
     """
-    thickness = float(ds["thickness"].values[0]) if thickness is None else thickness
-    pmax = float(ds["pmax"].values[0]) if pmax is None else pmax
-    sub = ds.sel(thickness=thickness, pmax=pmax)
-    fig = new_figure(4.2 * len(PANELS), 3.6)
-    axes = fig.subplots(1, len(PANELS))
-    e0s = [float(e0) for e0 in sub["E0"].values]
-    failed = {e0: sub["status"].sel(E0=e0).values == "failed" for e0 in e0s}
-    for ax, (name, label) in zip(axes, PANELS):
-        lines = {e0: sub[name].sel(E0=e0).values for e0 in e0s}
-        draw_metric_vs_iop(ax, sub["IOP"].values, lines, failed, label)
-    axes[0].legend(fontsize="small")
+    rows = datasets if isinstance(datasets, dict) else {"": datasets}
+    first = next(iter(rows.values()))
+    thickness = float(first["thickness"].values[0]) if thickness is None else thickness
+    pmax = float(first["pmax"].values[0]) if pmax is None else pmax
+    fig = new_figure(4.2 * len(PANELS), 3.4 * len(rows))
+    axes = fig.subplots(len(rows), len(PANELS), squeeze=False)
+    for row_axes, (title, ds) in zip(axes, rows.items()):
+        sub = ds.sel(thickness=thickness, pmax=pmax)
+        e0s = [float(e0) for e0 in sub["E0"].values]
+        failed = {e0: sub["status"].sel(E0=e0).values == "failed" for e0 in e0s}
+        for ax, (name, label) in zip(row_axes, PANELS):
+            lines = {e0: sub[name].sel(E0=e0).values for e0 in e0s}
+            draw_metric_vs_iop(ax, sub["IOP"].values, lines, failed,
+                               f"{title}: {label}" if title else label)
+        row_axes[0].legend(fontsize="small")
     fig.suptitle(f"air-puff sweep: thickness {thickness:g} mm, pmax {pmax:g} kPa, "
-                 f"resolution {ds.attrs.get('param_resolution', '?')}")
+                 f"resolution {first.attrs.get('param_resolution', '?')}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)

@@ -16,7 +16,7 @@ import threading
 
 import pytest
 
-from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, SWEPT
+from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, PRESET_PARAMETERS, SWEPT
 from airpuff_core.result import METRICS
 try:  # tests/ may or may not be a package
     from .test_api_support import ServerProcess
@@ -222,6 +222,8 @@ def test_openapi_documents_units_and_ranges(client):
     for name, spec in PARAMETERS.items():
         p = props[name]
         number = p["items"] if name in SWEPT else p
+        if name in PRESET_PARAMETERS:  # a number or null (null: the model preset's value)
+            number = next(a for a in p["anyOf"] if a.get("type") == "number")
         assert p["x-unit"] == spec.unit, name
         lo = "minimum" if spec.low_inclusive else "exclusiveMinimum"
         hi = "maximum" if spec.high_inclusive else "exclusiveMaximum"

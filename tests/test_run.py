@@ -33,6 +33,8 @@ def test_both_applanations_and_metric_definitions(coarse_run):
     assert m["CH"] == pytest.approx(m["P1"] - m["P2"], abs=1e-12)
     assert m["IOPg"] == pytest.approx(0.5 * (m["P1"] + m["P2"]), abs=1e-12)
     assert m["IOPcc"] == pytest.approx(m["P1"] - 0.43 * m["P2"], abs=1e-12)
+    assert m["CRF"] == pytest.approx(m["P1"] - 0.7 * m["P2"], abs=1e-12)
+    assert m["IOPcc_ora"] == pytest.approx(m["P2"] - 0.43 * m["P1"], abs=1e-12)
 
 
 def test_netcdf_contract(coarse_run):

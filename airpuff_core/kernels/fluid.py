@@ -74,15 +74,24 @@ def advance_velocity(kind, x, vx, vy, grad_p, dvx, dvy, rho_half, rho_n, mu, dt,
     for i in range(x.shape[0]):
         k = kind[i]
         if k == INTERIOR:
-            xi = x[i]
-            lap_vx = dvx[i, 2] + dvx[i, 4] + dvx[i, 0] / xi - vx[i] / (xi * xi)
-            lap_vy = dvy[i, 2] + dvy[i, 4] + dvy[i, 0] / xi
+            lap_vx, lap_vy = viscous_laplacian(i, k, x, vx, dvx, dvy)
             vx_new[i] = vx[i] + dt * (-grad_p[i, 0] / rho_half[i] + mu * lap_vx / rho_n[i] + hv_x[i])
             vy_new[i] = vy[i] + dt * (-grad_p[i, 1] / rho_half[i] + mu * lap_vy / rho_n[i] + hv_y[i])
         elif k == AXIS:
-            lap_vy = 2.0 * dvy[i, 2] + dvy[i, 4]
+            _, lap_vy = viscous_laplacian(i, k, x, vx, dvx, dvy)
             vx_new[i] = 0.0
             vy_new[i] = vy[i] + dt * (-grad_p[i, 1] / rho_half[i] + mu * lap_vy / rho_n[i] + hv_y[i])
+
+
+@njit(cache=True)
+def viscous_laplacian(i, k, x, vx, dvx, dvy):
+    """The viscous terms (lap v_x - v_x / x^2, lap v_y) [1/(m s)] at node i of kind k, from the
+    derivative vectors ``dvx``, ``dvy``; on the axis (k = AXIS) f_x / x -> f_xx and v_x = 0."""
+    if k == AXIS:
+        return 0.0, 2.0 * dvy[i, 2] + dvy[i, 4]
+    xi = x[i]
+    return (dvx[i, 2] + dvx[i, 4] + dvx[i, 0] / xi - vx[i] / (xi * xi),
+            dvy[i, 2] + dvy[i, 4] + dvy[i, 0] / xi)
 
 
 @njit(cache=True)

@@ -30,6 +30,7 @@ from numba import njit
 
 from .membrane import (add_pressure_loads, add_segment_forces, air_jet, fung_resultants,
                        segment_strains)
+from .viscoelastic import relax_in_place
 
 LIMBUS_PINNED = 0
 LIMBUS_CLAMPED = 1
@@ -131,21 +132,38 @@ def shell_work(n):
 
 
 @njit(cache=True)
-def _work_rows(work, n):
+def work_rows(work, n):
     return (work[0, :n - 1], work[1, :n - 1], work[2, :n - 1], work[3, :n - 1], work[4, :n - 1],
             work[5, :n - 1], work[6], work[7], work[8], work[9])
 
 
 @njit(cache=True)
 def shell_internal_forces(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
-                          Ebar, nu, k, D, work, Fx, Fy):
+                          Ebar, nu, k, D, work, Fx, Fy, ve_mode, ve_previous, ve_overstress,
+                          ve_decay, ve_weight):
     """Fx, Fy = -dPi/dX [N] of membrane plus bending (overwritten).  ``work`` is (10, n) scratch
     (``shell_work``).  With D = 0 the bending part is skipped and the forces are the membrane's,
-    bit for bit."""
+    bit for bit.
+
+    Viscoelasticity (``kernels/viscoelastic.py``) acts between the resultants and the forces:
+    ve_mode 0 = none (the elastic law; the ve_ arrays are not read), 1 = the stored overstresses
+    are added, 2 = one Simo step with the factors ve_decay, ve_weight.  ve_previous (4, n) holds
+    the equilibrium N1, N2 (per segment) and M_s, M_theta (per node) of the last evaluation,
+    ve_overstress (terms, 4, n) the overstresses; both are updated in mode 2.  With
+    viscoelasticity the forces are those of the total resultants, no longer -dPi/dX."""
     n = X.shape[0]
-    E1, E2, psi, N1, N2, G, Ks, Kt, Ms, Mt = _work_rows(work, n)
+    E1, E2, psi, N1, N2, G, Ks, Kt, Ms, Mt = work_rows(work, n)
     shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, D, E1, E2, psi, Ks, Kt)
     shell_resultants(E1, E2, Ks, Kt, Ebar, nu, k, D, N1, N2, Ms, Mt)
+    if ve_mode != 0:
+        step = ve_mode == 2
+        relax_in_place(N1, ve_previous[0, :n - 1], ve_decay, ve_weight,
+                       ve_overstress[:, 0, :n - 1], step)
+        relax_in_place(N2, ve_previous[1, :n - 1], ve_decay, ve_weight,
+                       ve_overstress[:, 1, :n - 1], step)
+        if D != 0.0:
+            relax_in_place(Ms, ve_previous[2], ve_decay, ve_weight, ve_overstress[:, 2], step)
+            relax_in_place(Mt, ve_previous[3], ve_decay, ve_weight, ve_overstress[:, 3], step)
     for i in range(n):
         Fx[i] = 0.0
         Fy[i] = 0.0
@@ -172,7 +190,7 @@ def shell_energy(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbu
     """Elastic energy (Pi_membrane, Pi_bending) [J] of the current state:
     sum_s A0_s W_membrane and sum_i A_i W_bending (``work`` as in ``shell_internal_forces``)."""
     n = X.shape[0]
-    E1, E2, psi, N1, N2, G, Ks, Kt, Ms, Mt = _work_rows(work, n)
+    E1, E2, psi, N1, N2, G, Ks, Kt, Ms, Mt = work_rows(work, n)
     shell_strains(X, Y, L0, S0, psi_ref, dual_length, x_ref, limbus, 1.0, E1, E2, psi, Ks, Kt)
     membrane = 0.0
     for s in range(n - 1):
@@ -185,30 +203,39 @@ def shell_energy(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbu
 
 @njit(cache=True)
 def _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
-                        Ebar, nu, k, D, p_start, p_end, frac, t, jet, work, Fx, Fy, q):
+                        Ebar, nu, k, D, p_start, p_end, frac, t, jet, work, Fx, Fy, q,
+                        ve_mode, ve_previous, ve_overstress, ve_decay, ve_weight):
     for i in range(X.shape[0]):
         q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - air_jet(t, phi[i], jet[0], jet[1],
                                                                       jet[2], jet[3], jet[4])
     shell_internal_forces(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus, Ebar,
-                          nu, k, D, work, Fx, Fy)
+                          nu, k, D, work, Fx, Fy, ve_mode, ve_previous, ve_overstress, ve_decay,
+                          ve_weight)
     add_pressure_loads(X, Y, q, Fx, Fy)
 
 
 @njit(cache=True)
 def advance_shell(X, Y, VX, VY, mass, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area,
                   limbus, Ebar, nu, k, D, p_start, p_end, t_start, dt, n_sub, jet, work, Fx, Fy,
-                  q):
+                  q, viscoelastic, ve_previous, ve_overstress, ve_decay, ve_weight):
     """Velocity-Verlet sub-steps of the shell from t_start to t_start + dt (in place).
 
     The fluid pressure on the cornea is interpolated linearly from p_start (at t_start) to p_end;
     the jet (jet = pmax, a, b, T, t0) is evaluated at each sub-step.  Apex: x = 0 (the rotation
     psi = 0 there is built into the bending strains).  Limbus: fixed position (eq. 10); its
     rotation is fixed or free through the bending strains (``limbus``).
+
+    ``viscoelastic``: the resultants relax (``shell_internal_forces``), one Simo step per
+    sub-step with ve_decay, ve_weight made for the sub-step dt / n_sub; the history arrays are
+    updated in place.
     """
     n = X.shape[0]
     h = dt / n_sub
+    ve_start = 1 if viscoelastic else 0  # the state at t_start: its overstresses as stored
+    ve_step = 2 if viscoelastic else 0
     _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
-                        Ebar, nu, k, D, p_start, p_end, 0.0, t_start, jet, work, Fx, Fy, q)
+                        Ebar, nu, k, D, p_start, p_end, 0.0, t_start, jet, work, Fx, Fy, q,
+                        ve_start, ve_previous, ve_overstress, ve_decay, ve_weight)
     for m in range(n_sub):
         for i in range(n - 1):
             VX[i] += 0.5 * h * Fx[i] / mass[i]
@@ -220,7 +247,8 @@ def advance_shell(X, Y, VX, VY, mass, phi, L0, S0, A0, psi_ref, dual_length, x_r
         frac = (m + 1.0) / n_sub
         _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area,
                             limbus, Ebar, nu, k, D, p_start, p_end, frac, t_start + (m + 1) * h,
-                            jet, work, Fx, Fy, q)
+                            jet, work, Fx, Fy, q, ve_step, ve_previous, ve_overstress, ve_decay,
+                            ve_weight)
         for i in range(n - 1):
             VX[i] += 0.5 * h * Fx[i] / mass[i]
             VY[i] += 0.5 * h * Fy[i] / mass[i]

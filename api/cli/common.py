@@ -11,15 +11,12 @@ import re
 import sys
 import time
 
-from airpuff_core.params import (CHOICE_DESCRIPTIONS, CHOICES, PARAMETERS, RunParams,
+from airpuff_core.params import (CHOICE_DESCRIPTIONS, CHOICES, PARAMETERS, SWEPT, RunParams,
                                  choice_default_text)
 
-# Options of `airpuff run` besides the four swept parameters.  Flags are spelled with dashes.
-RUN_OPTIONS = (
-    "R", "r_post", "alpha0", "rho_cornea", "rho_fluid", "mu", "nu", "fung_k", "a", "b", "T", "t0",
-    "tait_gamma", "c0", "c_slope", "coupling_tol", "t_end", "hyperviscosity", "output_interval",
-    "cfl",
-)
+# Options of `airpuff run` besides the four swept parameters (every other numeric parameter, so a
+# new one appears here by itself).  Flags are spelled with dashes.
+RUN_OPTIONS = tuple(name for name in PARAMETERS if name not in SWEPT)
 
 
 class OneLineParser(argparse.ArgumentParser):

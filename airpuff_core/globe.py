@@ -1,0 +1,174 @@
+"""The compliant globe: the chamber's walls as one volume degree of freedom with Friedenwald's law.
+
+The paper's chamber is closed by rigid walls, so the only compliance the cornea meets is the
+fluid's artificial compressibility, V / (rho c^2) (about 0.5 uL/mmHg at c = 10 m/s), which makes the
+chamber's stiffness a numerical choice.  The living eye's pressure-volume law is Friedenwald's
+(Friedenwald, Am. J. Ophthalmol. 20 (1937) 985):
+
+    log10(P / P0) = K dV,   i.e.   dP/dV = ln(10) K P,
+
+with the ocular rigidity K [1/uL] and dV the volume added to the globe (here: pushed in by the
+cornea).  ``globe = compliant`` lets the rigid walls behind the fluid (the posterior sphere and the
+lateral wall of the sector, the plane of the cap) recede so that the chamber as a whole obeys this
+law, whatever the sound speed:
+
+    chamber volume  V_ch(t) = V_ch0 + M (1/rho_bar(P) - 1/rho0),   P = P0 10^(K dV_c),
+
+where dV_c = V_c0 - V_c(t) is the volume the cornea has pushed in, M the fluid mass and rho_bar(P)
+the density of the equation of state at pressure P.  The fluid's mean density is then always the
+density of the globe's pressure: the wall gives way by the indentation volume MINUS what the fluid
+is compressed by, so the fluid's compressibility does not add to the globe's compliance, and
+the mean pressure does not depend on c.  (In an incompressible fluid the wall would take exactly
+dV_c.)  The wall's position is a function of the cornea's state, with no inertia and no damping of
+its own, so it adds no stiff mode and no coupling iteration; the fluid carries the acoustic and
+inertial deviations from the mean.
+
+The walls recede along the axis.  Every wall node moves by w(x) d in -y, with w = 1 on the
+posterior sphere (x <= x_c = r_post sin alpha0) and falling linearly in x to 0 at the limbus x_l on
+the lateral wall (``cap``: the plane, x_c = 0).  A vertical displacement of a surface of revolution
+sweeps exactly the volume int 2 pi x w(x) dx d, so the chamber grows by A_eff d with
+
+    A_eff = pi x_c^2 + 2 pi / (x_l - x_c) [x_l^3/6 - x_l x_c^2/2 + x_c^3/3]
+
+(53 mm^2 in the paper's sector: a few uL move the walls by about a tenth of a millimetre; a radial
+shrinking of the small posterior sphere alone, 8.9 uL behind it, would not have room).  The wall
+stays no-slip: its nodes carry the wall's velocity.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+LN10 = math.log(10.0)
+# s: time in which the wall makes up the fluid's volume drift (CompliantWall.commit); short
+# against the puff (~20 ms), long against a solver step (~5 us)
+DRIFT_RELAXATION_TIME = 0.1e-3
+
+
+def friedenwald_pressure(P0, rigidity_per_m3, dV):
+    """P = P0 10^(K dV)  [Pa] for the volume dV [m^3] pushed into the globe (K in 1/m^3)."""
+    return P0 * np.power(10.0, rigidity_per_m3 * dV)
+
+
+def tait_density(P, rho0, p0, c, gamma):
+    """Density [kg/m^3] at which the equation of state (5) gives the pressure P [Pa]:
+    rho = rho0 (1 + gamma (P - p0) / (rho0 c^2))^(1/gamma)."""
+    return rho0 * (1.0 + gamma * (P - p0) / (rho0 * c * c)) ** (1.0 / gamma)
+
+
+def swept_area(x_c, x_l):
+    """A_eff [m^2]: volume swept per metre of axial wall displacement (module docstring)."""
+    return math.pi * x_c ** 2 + 2.0 * math.pi / (x_l - x_c) * (
+        x_l ** 3 / 6.0 - x_l * x_c ** 2 / 2.0 + x_c ** 3 / 3.0)
+
+
+class CompliantWall:
+    """The receding walls of the chamber (SI units): one volume degree of freedom.
+
+    ``nodes``: indices of the wall nodes; ``weight``: their share w(x) of the axial displacement d;
+    ``y0``: their reference heights; ``area``: A_eff.
+    """
+
+    def __init__(self, x, y, wall_nodes, x_c, x_l, rigidity_per_m3, p0, rho0, mass, gamma):
+        self.nodes = np.asarray(wall_nodes)
+        xw = x[self.nodes]
+        self.weight = np.clip((x_l - xw) / (x_l - x_c), 0.0, 1.0)
+        self.y0 = y[self.nodes].copy()
+        self.area = swept_area(x_c, x_l)
+        self.rigidity = rigidity_per_m3
+        self.p0, self.rho0, self.gamma = p0, rho0, gamma
+        self.mass = float(np.sum(mass))
+        # mean wall pressure, weighted by the swept volume each node stands for (~ w x)
+        pw = self.weight * xw
+        self.pressure_weight = pw / pw.sum()
+        self.displacement = 0.0  # d [m], positive backwards (-y)
+        self.speed = 0.0  # dd/dt [m/s]
+        self.pressure = p0  # the globe's pressure P [Pa]
+        self.sound_speed = None  # c [m/s] of the last accepted step
+        # make-up for the fluid's volume drift (``commit``)
+        self.volume_offset = 0.0
+        self.drift_displacement = 0.0
+        self.drift_speed = 0.0
+
+    def wall_state(self, cornea_volume_change, cornea_volume_rate, c, dt):
+        """Displacement d [m], its rate [m/s] and the globe's pressure P [Pa] at the end of a step
+        dt [s] for a cornea whose enclosed volume has changed by ``cornea_volume_change`` [m^3]
+        (negative when pushed in), at the rate ``cornea_volume_rate`` [m^3/s], with the sound
+        speed c [m/s]:
+
+            A_eff d = -dV_cornea + M (1/rho_bar(P) - 1/rho0) + A_eff d_drift,
+            P = P0 10^(-K dV_cornea)
+
+        d_drift makes up for the fluid's volume drift (``commit``).  A change of c from the
+        last step (the running-maximum rule) moves the law's wall too: its rate is added to the
+        speed, so that the fluid sees it.
+        """
+        dv_in = -cornea_volume_change
+        P = friedenwald_pressure(self.p0, self.rigidity, dv_in)
+        rho_bar = tait_density(P, self.rho0, self.p0, c, self.gamma)
+        swept = dv_in + self.mass * (1.0 / rho_bar - 1.0 / self.rho0)
+        c_prev = c if self.sound_speed is None else self.sound_speed
+        rho_prev = tait_density(P, self.rho0, self.p0, c_prev, self.gamma)
+        swept_c_rate = self.mass * (1.0 / rho_bar - 1.0 / rho_prev) / dt if dt > 0.0 else 0.0
+        # d(1/rho)/dP = -1 / (rho^2 dP/drho),  dP/drho = c^2 (rho/rho0)^(gamma - 1)
+        dinv_dP = -1.0 / (rho_bar * rho_bar * c * c * (rho_bar / self.rho0) ** (self.gamma - 1.0))
+        dP_dt = LN10 * self.rigidity * P * (-cornea_volume_rate)
+        swept_rate = -cornea_volume_rate + self.mass * dinv_dP * dP_dt + swept_c_rate
+        return (swept / self.area + self.drift_displacement + self.drift_speed * dt,
+                swept_rate / self.area + self.drift_speed, float(P))
+
+    def commit(self, state, fluid_volume, chamber_volume, dt, c):
+        """Accept the wall state of a step of dt [s] with the sound speed c [m/s], and update the
+        drift make-up.
+
+        The fluid's own volume, sum m_j/rho_j (``fluid_volume`` [m^3]), drifts from the chamber's
+        geometric volume (``chamber_volume``, with the wall at ``state``) by the discretisation
+        error of the continuity equation at the moving cornea: about 0.5 % of the volume pushed
+        in at coarse resolution.  Its pressure error, rho c^2 / V times that, grows with c^2.  The
+        wall therefore gives way by that drift less: d_drift relaxes to -drift / A_eff within
+        DRIFT_RELAXATION_TIME, moving at its rate, so that the fluid sees the make-up through
+        its velocity like any wall motion.  (Moving the nodes without a velocity would not
+        change the density and would feed the drift back; following the drift within one step
+        amplifies the fluid's step-to-step noise.)
+        """
+        self.displacement, self.speed, self.pressure = state
+        self.sound_speed = c
+        drift = fluid_volume - chamber_volume - self.volume_offset
+        target = -drift / self.area
+        self.drift_displacement += self.drift_speed * dt
+        self.drift_speed = (target - self.drift_displacement) / DRIFT_RELAXATION_TIME
+
+    def impose(self, d, speed, y, vx, vy):
+        """Heights [m] and velocities [m/s] of the wall nodes for the displacement d."""
+        y[self.nodes] = self.y0 - self.weight * d
+        vx[self.nodes] = 0.0
+        vy[self.nodes] = -self.weight * speed
+
+    def mean_pressure(self, p_wall):
+        """Mean pressure [Pa] on the walls from the pressures ``p_wall`` [Pa] of the wall nodes
+        (in the order of ``nodes``), weighted by the volume each node sweeps."""
+        return float(np.dot(self.pressure_weight, p_wall))
+
+
+def _closed_polygon(xc, yc, y_axis):
+    xs = np.concatenate(([0.0], xc, [0.0]))
+    ys = np.concatenate(([y_axis], yc, [y_axis]))
+    return xs, ys
+
+
+def enclosed_volume_rate(xc, yc, vxc, vyc, y_axis):
+    """d/dt [m^3/s] of the volume swept about the axis by the meridian polygon (0, y_axis) -
+    cornea polyline (xc, yc) - (0, y_axis), whose volume |S| is computed by
+    ``cornea_polygon_volume``: S = pi/3 sum (x_a^2 + x_a x_b + x_b^2)(y_a - y_b) over its edges,
+    differentiated exactly for the node velocities (vxc, vyc) [m/s]."""
+    xs, ys = _closed_polygon(xc, yc, y_axis)
+    us = np.concatenate(([0.0], vxc, [0.0]))
+    ws = np.concatenate(([0.0], vyc, [0.0]))
+    xa, xb, ya, yb = xs[:-1], xs[1:], ys[:-1], ys[1:]
+    ua, ub, wa, wb = us[:-1], us[1:], ws[:-1], ws[1:]
+    S = np.sum((xa * xa + xa * xb + xb * xb) * (ya - yb))
+    dS = np.sum(((2 * xa + xb) * ua + (xa + 2 * xb) * ub) * (ya - yb)
+                + (xa * xa + xa * xb + xb * xb) * (wa - wb))
+    return math.copysign(1.0, S) * math.pi / 3.0 * dS

@@ -1,0 +1,130 @@
+"""The cornea's viscoelastic history: Prony terms, overstresses of N and M, their energy (SI).
+
+The kernel (``kernels/viscoelastic.py``) updates the overstresses of each resultant by Simo's
+recursion; this module holds their state through a run and measures their energy for the budget
+(``energy.py``).  E0 is the equilibrium modulus (docs/model.md, "Viscoelasticity"): the cornea
+starts fully relaxed, with no overstress, and its rest state is the elastic model's.
+
+State at t^n (rows: N1, N2 per segment in the first n - 1 entries; M_s, M_theta per node):
+
+- ``previous`` (4, n): the equilibrium-law resultants of the last evaluation;
+- ``overstress`` (terms, 4, n): q_i, zero at rest;
+
+and a trial copy that the coupling iterations advance from it (``begin_trial``) and that
+becomes the state at t^{n+1} when the step is accepted (``commit``).
+
+The stored energy of the overstresses, for a law linear about the rest state with tangent C, is
+Psi = sum_i G_inf / (2 g_i) q_i . C^-1 q_i (the free energy of the Maxwell branches of the
+generalised Maxwell model that the Prony series describes; Simo and Hughes, Computational
+Inelasticity, 1998, section 10.3).  C is the tangent of the Fung membrane law at each segment's
+rest strains and the bending law's D [[1, nu], [nu, 1]].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kernels.shell import shell_resultants, shell_strains, shell_work, work_rows
+from .kernels.viscoelastic import prony_step_factors
+
+
+class ViscoelasticHistory:
+    """Prony terms g [1], tau [s] and the history of one cornea (``model``: a ShellModel)."""
+
+    def __init__(self, model, g, tau, X_rest, Y_rest):
+        self.g = np.asarray(g, dtype=float)
+        self.tau = np.asarray(tau, dtype=float)
+        self.g_inf = 1.0 - float(self.g.sum())
+        self.model = model
+        n = model.n
+        self.decay = np.ones(self.g.shape[0])
+        self.weight = np.zeros(self.g.shape[0])
+        self._work = shell_work(n)
+        self._work1 = shell_work(n)
+        # the relaxed rest state: previous = its equilibrium resultants, no overstress
+        self.previous = np.zeros((4, n))
+        self.overstress = np.zeros((self.g.shape[0], 4, n))
+        E1, E2, _, N1, N2, _, Ks, Kt, Ms, Mt = self._strains_and_resultants(X_rest, Y_rest)
+        self.previous[0, :n - 1] = N1
+        self.previous[1, :n - 1] = N2
+        self.previous[2] = Ms
+        self.previous[3] = Mt
+        self._membrane_compliance = self._rest_compliance(E1, E2)
+        self._trial = (np.empty_like(self.previous), np.empty_like(self.overstress))
+
+    def _strains_and_resultants(self, X, Y, work=None):
+        m = self.model
+        work = self._work if work is None else work
+        rows = work_rows(work, m.n)
+        E1, E2, psi, N1, N2, _, Ks, Kt, Ms, Mt = rows
+        shell_strains(X, Y, m.L0, m.S0, m.psi_ref, m.dual_length, m.x_ref, m.limbus, m.D, E1, E2,
+                      psi, Ks, Kt)
+        shell_resultants(E1, E2, Ks, Kt, m.Ebar, m.nu, m.k, m.D, N1, N2, Ms, Mt)
+        return rows
+
+    def _rest_compliance(self, E1, E2):
+        """(c11, c12, c22) per segment: the inverse of the Fung law's tangent d(N1, N2)/d(E1, E2)
+        at the rest strains [m/N]."""
+        m = self.model
+        a = E1 + m.nu * E2
+        b = E2 + m.nu * E1
+        eQ = m.Ebar * np.exp(m.k * (E1 * E1 + E2 * E2 + 2.0 * m.nu * E1 * E2))
+        t11 = eQ * (1.0 + 2.0 * m.k * a * a)
+        t12 = eQ * (m.nu + 2.0 * m.k * a * b)
+        t22 = eQ * (1.0 + 2.0 * m.k * b * b)
+        det = t11 * t22 - t12 * t12
+        return t22 / det, -t12 / det, t11 / det
+
+    def set_substep(self, h):
+        """The factors of Simo's update for Verlet sub-steps of h [s]."""
+        prony_step_factors(h, self.g, self.tau, self.decay, self.weight)
+
+    def begin_trial(self):
+        """A fresh trial history from the state at t^n: the arguments (previous, overstress,
+        decay, weight) of the shell kernels, which advance it in place."""
+        previous, overstress = self._trial
+        previous[:] = self.previous
+        overstress[:] = self.overstress
+        return previous, overstress, self.decay, self.weight
+
+    @property
+    def trial_overstress(self):
+        return self._trial[1]
+
+    def commit(self):
+        """The trial history becomes the state (buffers swapped, not copied)."""
+        committed = (self.previous, self.overstress)
+        self.previous, self.overstress = self._trial
+        self._trial = committed
+
+    def stored_energy(self, overstress):
+        """Psi [J] of the overstresses (module docstring)."""
+        m = self.model
+        n = m.n
+        c11, c12, c22 = self._membrane_compliance
+        energy = 0.0
+        for i in range(self.g.shape[0]):
+            qN1, qN2 = overstress[i, 0, :n - 1], overstress[i, 1, :n - 1]
+            membrane = np.sum(m.A0 * (c11 * qN1 * qN1 + 2.0 * c12 * qN1 * qN2 + c22 * qN2 * qN2))
+            bending = 0.0
+            if m.D != 0.0:
+                qMs, qMt = overstress[i, 2], overstress[i, 3]
+                # C^-1 of D [[1, nu], [nu, 1]]
+                inv = 1.0 / (m.D * (1.0 - m.nu * m.nu))
+                bending = np.sum(m.node_area * inv * (qMs * qMs - 2.0 * m.nu * qMs * qMt
+                                                      + qMt * qMt))
+            energy += self.g_inf / (2.0 * self.g[i]) * (membrane + bending)
+        return float(energy)
+
+    def overstress_work(self, X0, Y0, X1, Y1, overstress0, overstress1):
+        """int q . dE over one step [J], trapezoidal: the mean total overstress of the two ends
+        times the change of the strains (membrane per segment on A0, bending per node on A_i)."""
+        m = self.model
+        n = m.n
+        E1a, E2a, _, _, _, _, Ksa, Kta, _, _ = self._strains_and_resultants(X0, Y0)
+        E1b, E2b, _, _, _, _, Ksb, Ktb, _, _ = self._strains_and_resultants(X1, Y1, self._work1)
+        q = 0.5 * (overstress0.sum(axis=0) + overstress1.sum(axis=0))
+        work = np.sum(m.A0 * (q[0, :n - 1] * (E1b - E1a) + q[1, :n - 1] * (E2b - E2a)))
+        if m.D != 0.0:
+            work += np.sum(m.node_area * (q[2] * (Ksb - Ksa) + q[3] * (Ktb - Kta)))
+        return float(work)

@@ -1,0 +1,116 @@
+"""The compliant globe: Friedenwald's law on the chamber, independent of the artificial sound speed.
+
+Reference values are the law itself, log10(P/P0) = K dV (Friedenwald 1937), and exact volumes of
+revolution; none is copied from the solver's output."""
+
+import math
+
+import numpy as np
+import pytest
+
+from airpuff_core import RunParams
+from airpuff_core.globe import (CompliantWall, enclosed_volume_rate, friedenwald_pressure,
+                                swept_area, tait_density)
+from airpuff_core.kernels.membrane import cornea_polygon_volume
+from airpuff_core.params import MMHG_PA, UL_M3
+from airpuff_core.solver import CoupledModel, simulate
+
+
+def test_enclosed_volume_rate_is_the_exact_derivative():
+    rng = np.random.default_rng(2)
+    phi = np.linspace(0.0, 1.0, 12)
+    X, Y = 7e-3 * np.sin(phi), 7e-3 * np.cos(phi)
+    VX, VY = rng.normal(size=12), rng.normal(size=12)
+    VX[0] = 0.0
+    for y_axis in (0.0, Y[-1]):
+        h = 1e-9
+        fd = (cornea_polygon_volume(X + h * VX, Y + h * VY, y_axis)
+              - cornea_polygon_volume(X - h * VX, Y - h * VY, y_axis)) / (2 * h)
+        assert enclosed_volume_rate(X, Y, VX, VY, y_axis) == pytest.approx(fd, rel=1e-6)
+
+
+def test_swept_area_is_the_volume_of_the_displaced_walls():
+    """A_eff d is the volume between the wall profile and the profile moved by w(x) d along the
+    axis: integrate 2 pi x w(x) over x numerically (sector: sphere + lateral line)."""
+    x_c, x_l = 2.04e-3 * math.sin(math.pi / 3), 7e-3 * math.sin(math.pi / 3)
+    x = np.linspace(0.0, x_l, 200001)
+    w = np.clip((x_l - x) / (x_l - x_c), 0.0, 1.0)
+    assert swept_area(x_c, x_l) == pytest.approx(np.trapezoid(2 * math.pi * x * w, x), rel=1e-8)
+    assert swept_area(0.0, x_l) == pytest.approx(math.pi * x_l ** 2 / 3, rel=1e-14)
+
+
+def test_wall_law_keeps_the_mean_density_at_the_globe_pressure():
+    """Chamber volume after the wall moved = M / rho_bar(P_globe), for two sound speeds."""
+    p0, rho0, gamma, K = 16 * MMHG_PA, 1000.0, 7.0, 0.0126 / UL_M3
+    V_ch0 = 350e-9
+    x = np.array([0.0, 1e-3, 3e-3])
+    y = np.array([2e-3, 1.9e-3, 1.5e-3])
+    wall = CompliantWall(x, y, np.arange(3), 1.7e-3, 6e-3, K, p0, rho0, np.array([rho0 * V_ch0]),
+                         gamma)
+    for c in (10.0, 20.0):
+        dVc = -5e-9
+        d, _, P = wall.wall_state(dVc, 0.0, c, 1e-6)
+        assert P == pytest.approx(p0 * 10 ** (0.0126 * 5.0), rel=1e-12)
+        chamber = V_ch0 + dVc + wall.area * d
+        assert rho0 * V_ch0 / chamber == pytest.approx(tait_density(P, rho0, p0, c, gamma),
+                                                       rel=1e-12)
+        # the rate is the derivative of the displacement along a volume history
+        h = 1e-12
+        d_plus, _, _ = wall.wall_state(dVc + h, 0.0, c, 1e-6)
+        d_minus, _, _ = wall.wall_state(dVc - h, 0.0, c, 1e-6)
+        _, speed, _ = wall.wall_state(dVc, 1.0, c, 1e-6)
+        assert speed == pytest.approx((d_plus - d_minus) / (2 * h), rel=1e-5)
+
+
+def _slow_push(c0):
+    """A slow uniform push on the cornea: a = 0, a jet of 1 kPa that starts from 1e-11 of its
+    peak and rises over 40 ms (standard deviation 5.7 ms), against oscillation periods of ~2 ms."""
+    return RunParams(globe="compliant", pmax=1.0, a=0.0, T=40.0, t0=40.0, t_end=40.0, c0=c0,
+                     c_rule="fixed", output_interval=0.5)
+
+
+@pytest.mark.parametrize("c0", [10.0, 20.0])
+def test_slow_injection_follows_friedenwald(c0):
+    """The fluid's pressure follows P0 10^(K dV) for the volume dV the cornea pushes in, within 2 %
+    of the rise, at both sound speeds (a rigid chamber's rise would be 4.4 and 17 times the
+    globe's): on average over the chamber from dV = 1 uL (rise 4.4 % of the IOP), on the walls
+    from 2 uL (the push is not quite quasi-static: at 1.4 uL the walls are 1.9 Pa, 2.1 % of the
+    rise, below the law)."""
+    params = _slow_push(c0)
+    model = CoupledModel(params)
+    K = params.ocular_rigidity
+    p0 = model.si.p0_Pa
+    checked = 0
+    while model.t < params.t_end * 1e-3 - 1e-12:
+        model.step(t_stop=params.t_end * 1e-3)
+        dv_in = -(cornea_polygon_volume(model.X, model.Y, model.volume_axis_y)
+                  - model.cornea_volume0) / UL_M3
+        if dv_in > 1.0:
+            expected = p0 * 10 ** (K * dv_in)
+            p = model.pressure()
+            wall_p = model.wall.mean_pressure(p[model.wall.nodes])
+            mean_p = np.average(p, weights=model.mass / model.rho)
+            rise = expected - p0
+            assert abs(mean_p - expected) < 0.02 * rise, (model.t, mean_p, expected)
+            if dv_in > 2.0:
+                assert abs(wall_p - expected) < 0.02 * rise, (model.t, wall_p, expected)
+            checked += 1
+    assert checked > 100
+
+
+def test_rest_with_compliant_globe_stays_still():
+    params = RunParams(globe="compliant", pmax=0.0, t_end=2.0)
+    result = simulate(params)
+    assert np.max(np.abs(result.histories["apex_displacement"])) < 1e-9  # mm
+    assert np.max(np.abs(result.histories["wall_volume_change"])) < 1e-9  # uL
+
+
+def test_doubling_the_sound_speed_barely_moves_p1_p2():
+    """With the compliant globe the chamber's stiffness is the globe's: doubling the artificial
+    sound speed (c0 and c_slope of the running-maximum rule) moves P1 and P2 by less than
+    0.2 mmHg at coarse resolution.  (A rigid chamber's stiffness is rho c^2 / V: there they move
+    by 0.37 and 0.42 mmHg; docs/model.md, section 11.)"""
+    base = simulate(RunParams(globe="compliant")).metrics
+    fast = simulate(RunParams(globe="compliant", c0=20.0, c_slope=40.0)).metrics
+    assert abs(fast["P1"] - base["P1"]) < 0.2
+    assert abs(fast["P2"] - base["P2"]) < 0.2
