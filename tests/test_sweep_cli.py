@@ -18,7 +18,9 @@ import xarray as xr
 from sweep.grid import SweepSpec
 from sweep.storage import point_key, point_path
 
-ARGS = ["--E0", "0.4,0.6", "--IOP", "12:20:3", "--resolution", "coarse", "--t-end", "3",
+# Points of 12 ms (about a second each at coarse resolution): with 3 ms points the whole sweep
+# could finish between the first stored file and the Ctrl-C under a loaded machine.
+ARGS = ["--E0", "0.4,0.6", "--IOP", "12:20:3", "--resolution", "coarse", "--t-end", "12",
         "--workers", "2"]
 
 
@@ -29,7 +31,7 @@ def airpuff(*args):
 def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
     out = tmp_path / "sweep"
     spec = SweepSpec(E0=[0.4, 0.6], IOP=[12.0, 16.0, 20.0],
-                     options={"resolution": "coarse", "t_end": 3.0}).validate()
+                     options={"resolution": "coarse", "t_end": 12.0}).validate()
     files = [point_path(out / "points", point_key(p)) for p in spec.points()]
 
     proc = subprocess.Popen(airpuff("sweep", *ARGS, "--out", str(out)), stdout=subprocess.PIPE,
