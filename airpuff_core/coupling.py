@@ -172,7 +172,7 @@ class CoupledModel:
         self.last_substeps = 0
         self.last_hv_substeps = 0
         self.dt_hyperviscous = math.inf  # s, stability limit of the hyperviscosity (time_step)
-        self.dt_limits = {}  # s: the acoustic, viscous and hyperviscous limits of the last step
+        self.dt_limits = {}  # s: the acoustic and viscous limits of the last step
         self.max_cond = float(self.ops_n.cond.max())
         self.budget = EnergyBudget(self.cornea_model, self.viscoelastic, self.mass, si.rho_fluid,
                                    si.p0_Pa, si.tait_gamma)
@@ -187,7 +187,9 @@ class CoupledModel:
         X0, Y0 = ch.x[ch.cornea_nodes].copy(), ch.y[ch.cornea_nodes].copy()
         q = np.full(X0.shape, self.si.p0_Pa)
         if self.params.jet_start == "equilibrium":
-            q -= np.array([air_jet(0.0, phi, *self.jet) for phi in ch.phi_cornea])
+            jet_at_rest = np.empty_like(q)
+            jet_pressures(0.0, ch.phi_cornea, self.jet, jet_at_rest)
+            q -= jet_at_rest
         X, Y, self.equilibrium_residual = static_equilibrium(self.cornea_model, X0, Y0, q)
         self.rest_shape_deviation = float(np.max(np.hypot(X - X0, Y - Y0)))
         self.X, self.Y = X, Y
@@ -219,16 +221,15 @@ class CoupledModel:
     def time_step(self):
         """dt [s] from the acoustic CFL condition, dt <= cfl h_min / (c + v_max), and the viscous
         limit, dt <= VISCOUS_SAFETY rho_min h_min^2 / mu; also refreshes the hyperviscosity's
-        stability limit ``dt_hyperviscous``, which the predictor meets by sub-cycling.  The three
-        limits are kept in ``dt_limits`` [s]."""
+        stability limit ``dt_hyperviscous``, which the predictor meets by sub-cycling.  The
+        two limits that set dt are kept in ``dt_limits`` [s]."""
         si = self.si
         vmax = max_speed(self.vx, self.vy)
         dt_acoustic = si.cfl * self.h_min / (self.c + vmax)
         dt_viscous = (VISCOUS_SAFETY * float(self.rho.min()) * self.h_min ** 2 / si.mu
                       if si.mu > 0 else math.inf)
         self.dt_hyperviscous = self._hyperviscous_limit()
-        self.dt_limits = {"acoustic": dt_acoustic, "viscous": dt_viscous,
-                          "hyperviscous": self.dt_hyperviscous}
+        self.dt_limits = {"acoustic": dt_acoustic, "viscous": dt_viscous}
         return min(dt_acoustic, dt_viscous)
 
     def _hyperviscous_limit(self):

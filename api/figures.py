@@ -25,7 +25,6 @@ import os
 import re
 import subprocess
 import sys
-import tempfile
 import textwrap
 import threading
 from pathlib import Path
@@ -33,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from airpuff_core.atomic import atomic_write
 from airpuff_core.result import METRICS
 
 from .settings import Settings
@@ -145,18 +145,6 @@ def cache_path(settings: Settings, job_id: str, name: str) -> Path:
     return settings.jobs_dir / job_id / "figures" / f"{name}.png"
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".png")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, Any]],
                name: str) -> tuple[bytes, bool]:
     """(PNG, final) of figure ``name`` of ``job`` (``api.routes.job_info``); ``final`` says the
@@ -175,7 +163,7 @@ def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, 
         return path.read_bytes(), True
     data = draw(name, records)
     if final:
-        write_atomic(path, data)
+        atomic_write(path, lambda tmp: tmp.write_bytes(data))
     return data, final
 
 

@@ -275,8 +275,7 @@ def _describe_parameter(name: str) -> tuple[str, str]:
 
 
 def _request_table(request: dict[str, Any]) -> str:
-    order = (list(SWEPT) + [n for n in CHOICES] + [n for n in PARAMETERS if n not in SWEPT]
-             + list(INT_PARAMETERS))
+    order = list(SWEPT) + list(sweep_form.MAIN_CHOICES) + sweep_form.option_names()
     rows = []
     for name in order + sorted(set(request) - set(order)):
         if name not in request:

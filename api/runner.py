@@ -53,7 +53,7 @@ import uuid
 from pathlib import Path
 
 from airpuff_core.provenance import model_version
-from sweep.storage import one_line_message
+from sweep.storage import INFRASTRUCTURE_RETRIES, one_line_message
 
 from . import db
 from .settings import Settings
@@ -62,9 +62,6 @@ from .status import POINT_RESULTS
 log = logging.getLogger("airpuff.runner")
 
 MAX_LOST_RESUBMITS = 3  # futures cancelled under us (scheduler restart) are resubmitted this often
-# A point whose failure is the infrastructure's (a worker lost for good, a write error) is
-# submitted again this often before its failure is recorded.
-INFRASTRUCTURE_RETRIES = 2
 # A point whose stored file proves unusable when its job is combined is computed again this often.
 MAX_DAMAGED_RECOMPUTES = 2
 

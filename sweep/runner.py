@@ -40,13 +40,9 @@ from airpuff_core.provenance import model_version
 from .combine import DamagedPointFiles, write_sweep
 from .grid import SweepSpec
 from .numba_cache import warm_numba_cache
-from .storage import (POINTS_SUBDIR, SWEEP_FILE, failure_kind, point_key, read_point, reusable,
-                      write_spec)
+from .storage import (INFRASTRUCTURE_RETRIES, POINTS_SUBDIR, SWEEP_FILE, failure_kind, point_key,
+                      read_point, reusable, write_spec)
 from .worker import failure_from_exception, run_point
-
-# Automatic re-runs of a point whose failure is the infrastructure's (a lost worker, a write
-# error), after the first attempt.
-INFRASTRUCTURE_RETRIES = 2
 
 
 @dataclass

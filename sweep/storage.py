@@ -60,6 +60,9 @@ PER_CALL_FIELDS = ("computed", "pid", "first_in_process", "jit_compiled", "jit_l
 # Failures that are the solver's verdict on the parameters (the exception's class name): computing
 # the point again gives the same failure.  Any other failure is the infrastructure's.
 MODEL_FAILURES = ("SimulationError", "ParameterError")
+# Automatic re-runs of a point whose failure is the infrastructure's (a lost worker, a write
+# error), after the first attempt; used by both runners (sweep.runner and api.runner).
+INFRASTRUCTURE_RETRIES = 2
 
 # The first bytes of a netCDF file: HDF5 (netCDF-4) or classic netCDF (CDF1 / CDF2).
 NETCDF_MAGIC = (b"\x89HDF", b"CDF\x01", b"CDF\x02")

@@ -10,7 +10,6 @@ Fluid compression energy per unit mass, for the equation of state (5) with B = r
            = (p0 - B) (1/rho0 - 1/rho) + B / (rho0^gamma (gamma - 1)) (rho^(gamma-1) - rho0^(gamma-1))
 """
 
-import numpy as np
 from numba import njit
 
 from .fluid import viscous_laplacian
