@@ -8,7 +8,8 @@ The run is the solver's own (``CoupledModel`` stepped under the ``Recorder``, as
 does), so its metrics are those of ``airpuff run``.  Beside them it prints the second
 applanation found with other measures of the apex curvature, from the same steps:
 
-- ``fit``: the solver's measure (docs/model.md section 3);
+- ``fit``: the solver's measure (docs/model.md section 3: since issue 14 the even quartic over
+  0.6 mm, ``quart_0.6`` below);
 - ``pair``: 2 (y0 - y1) / x1^2 from the apex and its neighbour (curvature at the apex, O(h^2));
 - ``quad_R``: least-squares y = c0 + c2 x^2 over the nodes with reference x <= R;
 - ``quart_R``: least-squares y = c0 + c2 x^2 + c4 x^4 over the same nodes;
@@ -23,19 +24,16 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from airpuff_core import RunParams  # noqa: E402
-from airpuff_core.coupling import CoupledModel  # noqa: E402
-from airpuff_core.kernels.membrane import air_jet, even_fit_curvature  # noqa: E402
-from airpuff_core.params import MMHG_PA  # noqa: E402
-from airpuff_core.recorder import Recorder  # noqa: E402
+from airpuff_core import RunParams
+from airpuff_core.coupling import CoupledModel
+from airpuff_core.kernels.membrane import air_jet, even_fit_curvature
+from airpuff_core.params import MMHG_PA
+from airpuff_core.recorder import Recorder
 
 APEX_REGION_MM = 1.2  # cornea nodes recorded: reference x up to this
 
