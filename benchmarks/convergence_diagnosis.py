@@ -22,6 +22,7 @@ the fastest fluid node was when it was set.  Writes ``<out>/<name>.json`` and th
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import time
@@ -49,7 +50,7 @@ def parse_changes(items):
     return changes
 
 
-def least_squares_curvature(X, Y, n_fit, quartic):
+def fitted_curvature(X, Y, n_fit, quartic):
     """kappa = -2 c2 [1/m] of y = c0 + c2 x^2 (+ c4 x^4) by least squares over n_fit nodes."""
     x = X[:n_fit]
     cols = [np.ones_like(x), x * x] + ([x ** 4] if quartic else [])
@@ -116,10 +117,10 @@ def analyse(model, result, series):
                 "pair": lambda x, y: 2.0 * (y[0] - y[1]) / (x[1] ** 2)}
     for R in (0.3, 0.6, 1.0):
         n = int(np.searchsorted(X_ref, R * 1e-3 * (1 + 1e-9), side="right"))
-        if n >= 2:
-            measures[f"quad_{R}"] = (lambda n: lambda x, y: least_squares_curvature(x, y, n, False))(n)
-        if n >= 3:
-            measures[f"quart_{R}"] = (lambda n: lambda x, y: least_squares_curvature(x, y, n, True))(n)
+        for form, quartic, least in (("quad", False, 2), ("quart", True, 3)):
+            if n >= least:
+                measures[f"{form}_{R}"] = functools.partial(fitted_curvature, n_fit=n,
+                                                            quartic=quartic)
     out = {}
     for name, f in measures.items():
         kappa = np.array([f(X[k], Y[k]) for k in range(len(t))])
