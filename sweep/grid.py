@@ -239,10 +239,11 @@ class SweepSpec:
         return d
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "SweepSpec":
+    def from_dict(cls, d: Mapping[str, Any], validate: bool = True) -> "SweepSpec":
         """Inverse of :meth:`to_dict`; also accepts a single number for an axis.  Missing axes
         take the parameter's default; unknown top-level keys raise ParameterError.  The result
-        is validated."""
+        is validated unless ``validate`` is False: for a caller that validates it next with
+        :meth:`validated_points` (building the grid once) or that stored it validated."""
         known = set(SWEPT) | {"options"}
         unknown = sorted(set(d) - known)
         if unknown:
@@ -252,4 +253,5 @@ class SweepSpec:
             if name in d:
                 kwargs[name] = d[name]
         kwargs["options"] = dict(d.get("options") or {})
-        return cls(**kwargs).validate()
+        spec = cls(**kwargs)
+        return spec.validate() if validate else spec
