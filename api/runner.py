@@ -307,7 +307,7 @@ class Runner:
         if reused:
             db.mark_reused(self.con, reused)
         if on_disk:
-            self._ensure_point_rows({k: p for k, (p, _) in on_disk.items()})
+            db.upsert_pending_points(self.con, on_disk, submitted=False)
             self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
         self._submit(job_id, seq, submit)
         n_reused = len(reused) + len(on_disk)
@@ -320,20 +320,13 @@ class Runner:
             return
         from sweep.worker import compute_point
 
-        self._ensure_point_rows(submit, submitted=True)
+        db.upsert_pending_points(self.con, submit, submitted=True)
         for key, params in submit.items():
             self.futures[key] = self.client.submit(
                 compute_point, params, key, pure=False, retries=self.settings.retries,
                 priority=-int(seq), key=f"airpuff-point-{key}-{uuid.uuid4().hex[:8]}")
             self.trigger[key] = job_id
             self.params[key] = params
-
-    def _ensure_point_rows(self, params_by_key: dict, submitted: bool = False) -> None:
-        """A ``points`` row (status pending) for each ``{key: RunParams}``; ``submitted`` counts
-        a submission."""
-        db.upsert_pending_points(
-            self.con, {k: json.dumps(p.to_dict(), sort_keys=True) for k, p in params_by_key.items()},
-            submitted)
 
     def _collect(self) -> None:
         """Finished futures: store each point's file and record its result."""
