@@ -303,12 +303,12 @@ class Runner:
             if row is not None and row["status"] == found["status"]:  # its result is recorded
                 reused.append((row["status"], row["message"], job_id, key))
             else:  # a file written just before a crash, whose record did not reach the database
-                on_disk[key] = (params, {**found, "computed": False})
+                on_disk[key] = {**found, "computed": False}
         if reused:
             db.mark_reused(self.con, reused)
         if on_disk:
             db.upsert_pending_points(self.con, on_disk, submitted=False)
-            self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
+            self._record([(k, job_id, rec) for k, rec in on_disk.items()])
         self._submit(job_id, seq, submit)
         n_reused = len(reused) + len(on_disk)
         log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
