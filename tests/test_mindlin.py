@@ -14,6 +14,7 @@ from airpuff_core.kernels.mindlin import SHEAR_CORRECTION, mindlin_internal_forc
 from airpuff_core.membrane import static_equilibrium
 from airpuff_core.shell import (NO_HISTORY, MindlinShellModel, ShellModel, build_shell,
                                 plate_rigidity, shell_on_meridian)
+from tests.test_shell import reference_membrane
 
 P0 = 16 * 133.322  # Pa
 R = 7e-3  # m
@@ -24,12 +25,7 @@ def reference_energy(m, X, Y, beta):
     """Pi = sum_s A0_s (W_membrane + W_bending + S/2 gamma^2), written out from the definitions
     with numpy (not the kernels): Fung membrane, director bending strains and shear strain at
     the segments' mid-points."""
-    dx, dy = np.diff(X), np.diff(Y)
-    E1 = 0.5 * ((dx ** 2 + dy ** 2) / m.L0 ** 2 - 1)
-    E2 = 0.5 * (((X[:-1] + X[1:]) / m.S0) ** 2 - 1)
-    quad = E1 ** 2 + E2 ** 2 + 2 * m.nu * E1 * E2
-    W_m = 0.5 * m.Ebar * quad if m.k == 0 else 0.5 * m.Ebar / m.k * np.expm1(m.k * quad)
-    psi = np.arctan2(-dy, dx)
+    W_m, psi = reference_membrane(m, X, Y)
     b, br = beta, m.beta_ref
     Ks = (np.diff(b) - np.diff(br)) / m.L0
     mean, mean_ref = 0.5 * (b[:-1] + b[1:]), 0.5 * (br[:-1] + br[1:])
