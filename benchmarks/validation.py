@@ -86,11 +86,14 @@ def studies_of(model: str) -> dict:
             **(SHEAR_STUDY if model == "clinical" else {})}
 
 
-def run_studies(out: Path, resolution: str, models, reuse: bool) -> list[dict]:
-    """``models``: {label: RunParams options}, e.g. {"shell": {"cornea": "shell"}}."""
+def run_studies(out: Path, resolution: str, models, reuse: bool, only=None) -> list[dict]:
+    """``models``: {label: RunParams options}, e.g. {"shell": {"cornea": "shell"}}; ``only``: the
+    names of the studies to run (default all of each model's)."""
     rows = []
     for model, options in models.items():
         for name, values in studies_of(model).items():
+            if only and name not in only:
+                continue
             for v in values:
                 point = {**NORMAL_EYE, name: v}
                 params = RunParams(resolution=resolution, **options, **point)
@@ -100,10 +103,12 @@ def run_studies(out: Path, resolution: str, models, reuse: bool) -> list[dict]:
     return rows
 
 
-def summary(rows: list[dict], corneas) -> list[dict]:
+def summary(rows: list[dict], corneas, only=None) -> list[dict]:
     lines = []
     for cornea in corneas:
         for name in studies_of(cornea):
+            if only and name not in only:
+                continue
             pts = [r for r in rows if r["cornea"] == cornea and r["study"] == name
                    and r["status"] == "ok"]
             per, unit = SLOPE_PER[name]
@@ -197,6 +202,9 @@ def main(argv=None):
                     help="also (or, without --cornea, only) study this model preset "
                          "(clinical_kirchhoff: the clinical preset with the Kirchhoff-Love shell)")
     ap.add_argument("--reuse", action="store_true", help="read back runs already in --out")
+    ap.add_argument("--study", action="append",
+                    choices=(*STUDIES, *VISCOELASTIC_STUDIES, *SHEAR_STUDY),
+                    help="run only this study (repeatable; default all)")
     args = ap.parse_args(argv)
     corneas = args.cornea or ([] if args.model else ["membrane", "shell"])
     models = {**{c: {"cornea": c} for c in corneas},
@@ -204,9 +212,9 @@ def main(argv=None):
     corneas = list(models)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = run_studies(out, args.resolution, models, args.reuse)
+    rows = run_studies(out, args.resolution, models, args.reuse, args.study)
     write_tables(rows, out, "validation")
-    lines = summary(rows, corneas)
+    lines = summary(rows, corneas, args.study)
     figure(rows, corneas, out / "validation.png", args.resolution)
     print(markdown(lines, rows, args.resolution))
 
