@@ -16,6 +16,12 @@ Rest state: the stress-free reference is the homothetic arc of radius R / lambda
 prestretch).  A homothety keeps every angle, so the drawn arc has no bending strain and carries the
 IOP by membrane tension alone; the discrete equilibrium (Newton, ``static_equilibrium``) differs
 from it by the membrane's O(dphi^2) and is reported by the run.
+
+Transverse shear (``MindlinShellModel``, ``kernels/mindlin.py``): with a transverse shear modulus
+G_t > 0 the shell is shear-deformable (Reissner-Mindlin): every node carries a director with its
+own rotation and rotary inertia, and bending and transverse shear are separate strains.  The
+Kirchhoff-Love ``ShellModel`` is the shell rigid in shear (G_t = 0), computed as before.  The
+directors are the model's own state (``rest``, ``advance`` into a trial state, ``commit``).
 """
 
 from __future__ import annotations
