@@ -166,7 +166,7 @@ def figure(rows: list[dict], corneas, path: Path, resolution: str) -> None:
     labels = {"thickness": "CCT [mm]", "E0": "E0 [MPa]", "IOP": "true IOP [mmHg]"}
     for row_axes, metric in zip(axes, ("IOPg", "CH")):
         for ax, name in zip(row_axes, STUDIES):
-            for cornea, marker in zip(corneas, "os^"):
+            for cornea, marker in zip(corneas, "os^Dv"):
                 pts = [r for r in rows if r["cornea"] == cornea and r["study"] == name
                        and r["status"] == "ok"]
                 ax.plot([r["value"] for r in pts], [r[metric] for r in pts], marker=marker,
