@@ -1,8 +1,9 @@
 """Shear-deformable (Reissner-Mindlin) shell cornea: forces and director moments against finite
 differences of an independently written energy, the clamped circular Mindlin plate against
 p a^4 / (64 D) + p a^2 / (4 kappa G_t h), the Kirchhoff limit without shear locking, the rest
-state, the stable sub-step against the eigenfrequencies, the option at the edges, and the
-energy budget of a clinical run with the shear energy and its viscous dissipation."""
+state, the stable sub-step against the eigenfrequencies, a free vibration's energy, the
+relaxation of all five resultants (Q among them) after a strain step, the option at the edges,
+and the energy budget of a clinical run with the shear energy and its viscous dissipation."""
 
 import math
 
@@ -10,10 +11,13 @@ import numpy as np
 import pytest
 
 from airpuff_core import ParameterError, RunParams, simulate
-from airpuff_core.kernels.mindlin import SHEAR_CORRECTION, mindlin_internal_forces
+from airpuff_core.kernels.mindlin import (SHEAR_CORRECTION, mindlin_internal_forces, mindlin_rows,
+                                          mindlin_work)
+from airpuff_core.kernels.viscoelastic import relaxation_function
 from airpuff_core.membrane import static_equilibrium
 from airpuff_core.shell import (NO_HISTORY, MindlinShellModel, ShellModel, build_shell,
                                 plate_rigidity, shell_on_meridian)
+from airpuff_core.viscoelastic import ViscoelasticHistory
 from tests.test_shell import reference_membrane
 
 P0 = 16 * 133.322  # Pa
@@ -221,3 +225,41 @@ def test_free_vibration_conserves_energy():
     assert max(rotary) > 0.01 * e0  # the directors do swing (measured 0.075)
     assert np.max(np.abs(energies - e0)) < 3e-3 * e0  # measured 5.8e-4
     assert abs(energies[-10:].mean() - energies[:10].mean()) < 2e-4 * e0  # measured 3.4e-6
+
+
+def _mindlin_resultants(m, X, Y, beta, mode=0, history=NO_HISTORY):
+    """Total N1, N2, M_s, M_theta, Q (per segment) after one kernel evaluation."""
+    work = mindlin_work(m.n)
+    Fx, Fy, T = np.empty(m.n), np.empty(m.n), np.empty(m.n)
+    mindlin_internal_forces(X, Y, beta, *m.mindlin_args(), work, Fx, Fy, T, mode, *history)
+    rows = mindlin_rows(work, m.n)
+    return np.concatenate((rows[3], rows[4], rows[9], rows[10], rows[11]))
+
+
+def test_strain_step_relaxes_as_G_with_shear():
+    """The five resultants, the transverse shear force among them, of a shear-deformable shell
+    held after a step of stretch, bend and director tilt (applied within 1 ns) follow
+    S(t) = S_eq0 + (S_eq1 - S_eq0) G(t) / G_inf, to 1e-6 of the step."""
+    phi = np.linspace(0.0, math.radians(60.0), 14)
+    m = build_shell(phi, R, P0, 0.5e6, 0.5e-3, 0.5, 240.0, 1000.0, transverse_shear_modulus=G_T)
+    g, tau = 0.3, 10e-3
+    X0, Y0 = m.R_ref * np.sin(phi), m.R_ref * np.cos(phi)
+    X1, Y1 = 1.002 * X0, 1.002 * Y0
+    Y1[3] -= 2e-5
+    beta1 = m.beta_ref.copy()
+    beta1[5] += 0.01
+    history = ViscoelasticHistory(m, [g], [tau], X0, Y0)
+    assert history.previous.shape == (5, m.n)
+    s_eq0 = _mindlin_resultants(m, X0, Y0, m.beta_ref)
+    step = _mindlin_resultants(m, X1, Y1, beta1) - s_eq0
+    t = 0.0
+    rng = np.random.default_rng(4)
+    for dt in np.concatenate(([1e-9], rng.uniform(0.05e-3, 3e-3, 25))):
+        history.set_substep(dt)
+        total = _mindlin_resultants(m, X1, Y1, beta1, 2, history.begin_trial())
+        history.commit()
+        t += dt
+        expected = s_eq0 + step * relaxation_function(t, [g], [tau]) / (1.0 - g)
+        assert np.max(np.abs(total - expected)) < 1e-6 * np.max(np.abs(step)), t
+    assert t > 3 * tau
+    assert np.max(np.abs(step[-(m.n - 1):])) > 0  # the step shears the shell
