@@ -190,7 +190,7 @@ def test_energy_budget_closes_with_shear():
     w_max = np.max(np.abs(h["jet_work"]))
     assert w_max > 1.0  # uJ
     assert np.max(np.abs(h["energy_residual"])) < 0.02 * w_max
-    assert h["tissue_dissipation"][-1] > 0
+    assert h["tissue_dissipation"][-1] > 0.5 * h["jet_work"][-1] > 0  # measured 3.12 of 3.72 uJ
     assert np.min(h["tissue_dissipation"]) > -1e-3 * w_max
 
 
