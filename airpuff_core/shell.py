@@ -34,9 +34,9 @@ import numpy as np
 
 from .kernels.energy import kinetic_energy
 from .kernels.membrane import add_pressure_loads, max_wave_speed
-from .kernels.mindlin import (SHEAR_CORRECTION, advance_mindlin, max_director_frequency,
-                              mindlin_energy, mindlin_internal_forces, mindlin_rows, mindlin_strains,
-                              mindlin_resultants, mindlin_work)
+from .kernels.mindlin import (SHEAR_CORRECTION, advance_mindlin, balance_directors,
+                              max_director_frequency, mindlin_energy, mindlin_internal_forces,
+                              mindlin_rows, mindlin_resultants, mindlin_strains, mindlin_work)
 from .kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell, bending_moments,
                             max_bending_frequency, segment_angles, shell_energy,
                             shell_internal_forces, shell_resultants, shell_strains, shell_work,
@@ -259,8 +259,10 @@ def director_reference(psi_ref):
     return beta
 
 
-# Newton iterations of the directors' static balance stop once a correction is below this [rad]
+# Newton iterations of the directors' static balance stop once a correction is below this [rad],
+# or after DIRECTOR_ITERATIONS (quadratic convergence takes 3-5)
 DIRECTOR_TOL = 1e-13
+DIRECTOR_ITERATIONS = 50
 
 
 @dataclass
@@ -287,7 +289,6 @@ class MindlinShellModel(ShellModel):
         self.beta = self.beta_ref.copy()
         self.omega = np.zeros(n)
         self._trial = (self.beta.copy(), self.omega.copy())
-        self._free = np.arange(1, n - 1 if self.limbus == LIMBUS_CLAMPED else n)
 
     @property
     def stencil(self):
@@ -308,7 +309,7 @@ class MindlinShellModel(ShellModel):
 
     def balanced_directors(self, X, Y):
         """The director angles [rad] at which the moments vanish for positions (X, Y) [m]
-        (Newton's method on the bending and shear energy, exact tridiagonal Hessian): the static
+        (``balance_directors``, from the directors that follow the segments' tilt): the static
         shell's directors, and with them ``forces`` is -dPi/dX of the energy minimised over the
         directors."""
         n = self.n
@@ -320,30 +321,8 @@ class MindlinShellModel(ShellModel):
         if self.limbus != LIMBUS_CLAMPED:
             beta[-1] += tilt[-1]
         Fx, Fy, T = np.empty(n), np.empty(n), np.empty(n)
-        free = self._free
-        A0, L0, x, D, nu = self.A0, self.L0, self.x_mid, self.D, self.nu
-        for _ in range(50):
-            self._director_loads(X, Y, beta, Fx, Fy, T)
-            Mt = mindlin_rows(self.work, n)[10]
-            mean = 0.5 * (beta[:-1] + beta[1:])
-            c = np.cos(mean) / (2.0 * x)
-            curvature = -np.sin(mean) / (4.0 * x)
-            gK = 1.0 / L0
-            # per segment, d^2 Pi_s / d(beta_a, beta_b)^2 = A0 [D (gK gK + gT gT + nu (gK gT +
-            # gT gK)) + M_theta d^2 K_theta + S gG gG], gK = (-1, 1)/L0, gT = (c, c), gG = -1/2
-            aa = A0 * (D * (gK * gK + c * c - 2.0 * nu * gK * c) + Mt * curvature + 0.25 * self.S)
-            bb = A0 * (D * (gK * gK + c * c + 2.0 * nu * gK * c) + Mt * curvature + 0.25 * self.S)
-            ab = A0 * (D * (-gK * gK + c * c) + Mt * curvature + 0.25 * self.S)
-            H = np.zeros((n, n))
-            idx = np.arange(n - 1)
-            H[idx, idx] += aa
-            H[idx + 1, idx + 1] += bb
-            H[idx, idx + 1] += ab
-            H[idx + 1, idx] += ab
-            delta = np.linalg.solve(H[np.ix_(free, free)], T[free])
-            beta[free] += delta
-            if np.max(np.abs(delta)) < DIRECTOR_TOL:
-                break
+        balance_directors(X, Y, beta, *self.mindlin_args(), self.limbus, self.work, Fx, Fy, T,
+                          *NO_HISTORY, DIRECTOR_TOL, DIRECTOR_ITERATIONS)
         return beta
 
     def forces(self, X, Y, q):

@@ -197,6 +197,62 @@ def advance_mindlin(X, Y, VX, VY, beta, omega, mass, inertia, phi, L0, S0, A0, p
 
 
 @njit(cache=True)
+def balance_directors(X, Y, beta, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D, S, limbus,
+                      work, Fx, Fy, T, ve_previous, ve_overstress, ve_decay, ve_weight, tol,
+                      max_iter):
+    """Directors beta [rad] (in place, from the given start) at which the moments T vanish for
+    the positions (X, Y): Newton's method with the exact tridiagonal Hessian of the bending and
+    shear energy, per segment
+
+        d^2 Pi_s / d(beta_a, beta_b)^2 = A0 [D (gK gK + gT gT + nu (gK gT + gT gK))
+                                         + M_theta d^2 K_theta + S gG gG],
+        gK = (-1, 1) / L0,  gT = (c, c),  c = cos(betabar) / (2 x_mid),  gG = (-1/2, -1/2),
+
+    solved by the Thomas algorithm on the free directors (1 .. n - 2, and n - 1 when pinned), until
+    a correction is below ``tol`` [rad].  Returns the iterations used."""
+    n = X.shape[0]
+    last_free = n - 1 if limbus == LIMBUS_CLAMPED else n
+    diag = np.zeros(n)
+    off = np.zeros(n)  # off[i] couples i and i + 1
+    rhs = np.zeros(n)
+    it = 0
+    while it < max_iter:
+        it += 1
+        mindlin_internal_forces(X, Y, beta, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D,
+                                S, work, Fx, Fy, T, 0, ve_previous, ve_overstress, ve_decay,
+                                ve_weight)
+        Mt = work[10]
+        for i in range(n):
+            diag[i] = 0.0
+            off[i] = 0.0
+        for s in range(n - 1):
+            mean = 0.5 * (beta[s] + beta[s + 1])
+            c = np.cos(mean) / (2.0 * x_mid[s])
+            common = Mt[s] * (-np.sin(mean) / (4.0 * x_mid[s])) + 0.25 * S
+            gK = 1.0 / L0[s]
+            diag[s] += A0[s] * (D * (gK * gK + c * c - 2.0 * nu * gK * c) + common)
+            diag[s + 1] += A0[s] * (D * (gK * gK + c * c + 2.0 * nu * gK * c) + common)
+            off[s] = A0[s] * (D * (c * c - gK * gK) + common)
+        # Thomas algorithm on rows 1 .. last_free - 1 (the others are fixed)
+        for i in range(1, last_free):
+            rhs[i] = T[i]
+        for i in range(2, last_free):
+            w = off[i - 1] / diag[i - 1]
+            diag[i] -= w * off[i - 1]
+            rhs[i] -= w * rhs[i - 1]
+        largest = 0.0
+        delta = 0.0
+        for i in range(last_free - 1, 0, -1):
+            upper = off[i] * delta if i + 1 < last_free else 0.0
+            delta = (rhs[i] - upper) / diag[i]
+            beta[i] += delta
+            largest = max(largest, abs(delta))
+        if largest < tol:
+            break
+    return it
+
+
+@njit(cache=True)
 def max_director_frequency(L0, A0, x_mid, mass, inertia, limbus, D, nu, S):
     """Upper estimate [rad/s] of the highest frequency that bending and transverse shear add:
     Gershgorin's bound on the linearised stiffness of the directors (bending and shear, per unit
