@@ -3,7 +3,7 @@
     python benchmarks/validation.py --out validation                       # coarse, both corneas
     python benchmarks/validation.py --out validation_paper --resolution paper --cornea shell
     python benchmarks/validation.py --out validation_clinical --model clinical
-    python benchmarks/validation.py --out validation_clinical --model clinical --model clinical_kirchhoff
+    python benchmarks/validation.py --out validation_clinical --model clinical_kirchhoff --model clinical
     python benchmarks/validation.py --out validation --reuse               # read back finished runs
 
 Three one-parameter studies about the normal eye (E0 0.5 MPa, IOP 16 mmHg, CCT 0.54 mm, the

@@ -1,4 +1,4 @@
-"""Axisymmetric shear-deformable (Reissner-Mindlin) shell with large rotations, discrete energy (SI).
+"""Axisymmetric shear-deformable (Reissner-Mindlin) shell, large rotations, discrete energy (SI).
 
 The Kirchhoff-Love shell (``kernels/shell.py``) ties the normal of the shell to the meridian: it
 is rigid in transverse shear.  The corneal stroma is a stack of lamellae whose transverse shear
@@ -10,7 +10,7 @@ chord L0_s, zone area A0_s, reference mid-point distance x_mid_s from the axis),
 the segment's mid-point (one-point, "reduced" integration, the usual cure of shear locking):
 
     K_s     = ((beta_{s+1} - beta_s) - (beta_ref_{s+1} - beta_ref_s)) / L0_s
-    K_theta = (sin betabar_s - sin betabar_ref_s) / x_mid_s,        betabar_s = (beta_s + beta_{s+1}) / 2
+    K_theta = (sin betabar_s - sin betabar_ref_s) / x_mid_s,   betabar_s = (beta_s + beta_{s+1})/2
     gamma_s = (psi_s - psi_ref_s) - (betabar_s - betabar_ref_s)      (transverse shear strain)
 
 with psi_s the segment's meridian angle (``segment_angles``).  The energy is
