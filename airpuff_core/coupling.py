@@ -161,9 +161,11 @@ class CoupledModel:
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self._dv_new = np.zeros((2, n, 5))
-        # jet on the cornea at t^n and t^{n+1}, fluid pressure [Pa]: work arrays of the budget
+        # jet on the cornea at t^n and t^{n+1}, fluid pressure [Pa]: work arrays of the budget;
+        # the jet at t^{n+1} of one step is the next step's at t^n (at time _jet_time [s])
         self._energy_work = (np.empty(ch.phi_cornea.shape[0]), np.empty(ch.phi_cornea.shape[0]),
                              np.empty(n))
+        self._jet_time = math.nan
         N = self.X.shape[0]
         self._cornea_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_trial = (np.empty(N), np.empty(N))  # interface pressure estimates [Pa]
@@ -217,6 +219,7 @@ class CoupledModel:
                                   si.ocular_rigidity_per_m3, si.p0_Pa, si.rho_fluid, self.mass,
                                   si.tait_gamma)
         self.wall.volume_offset = self.density_volume() - self.chamber_volume()
+        self._wall_pressure = np.empty(self.wall.nodes.shape[0])  # work array [Pa]
 
     # -- time step --------------------------------------------------------------------------
     def time_step(self):
@@ -232,6 +235,12 @@ class CoupledModel:
         self.dt_hyperviscous = self._hyperviscous_limit()
         self.dt_limits = {"acoustic": dt_acoustic, "viscous": dt_viscous}
         return min(dt_acoustic, dt_viscous)
+
+    def max_step(self):
+        """An upper bound [s] of the next step's dt: the acoustic limit at the smallest sound
+        speed any rule gives, c >= c0 (infinite for c0 = 0)."""
+        c0 = self.si.c0
+        return self.si.cfl * self.h_min / c0 if c0 > 0 else math.inf
 
     def _hyperviscous_limit(self):
         """Largest stable forward-Euler step [s] of the hyperviscosity gamma c h^5 H."""
@@ -453,9 +462,14 @@ class CoupledModel:
         w = self._work
         X, Y = self._cornea_trial[0], self._cornea_trial[1]
         phi = self.chamber.phi_cornea
-        jet_n, jet_new, p_n = self._energy_work
-        jet_pressures(self.t, phi, self.jet, jet_n)
+        jet_new, jet_n, p_n = self._energy_work  # last step's jet at t^{n+1} is in [0]
+        if self._jet_time != self.t:
+            jet_pressures(self.t, phi, self.jet, jet_n)
+        else:
+            jet_n, jet_new = jet_new, jet_n
         jet_pressures(self.t + dt, phi, self.jet, jet_new)
+        self._energy_work = (jet_new, jet_n, p_n)
+        self._jet_time = self.t + dt
         tait_pressure(self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
         globe = 0.0 if self.wall is None else self._globe_work()
         ve = self.viscoelastic
@@ -470,7 +484,7 @@ class CoupledModel:
         """Work [J] of the fluid on the compliant walls over the step just coupled: the mean wall
         pressure of its two ends times the volume the walls gave way by."""
         si, wall = self.si, self.wall
-        p_wall = np.empty(wall.nodes.shape[0])
+        p_wall = self._wall_pressure
         tait_pressure_at(wall.nodes, self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma,
                          p_wall)
         p_start = wall.mean_pressure(p_wall)

@@ -14,7 +14,8 @@ import numpy as np
 
 from .errors import SimulationError
 from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
-from .kernels.neighbours import AXIS_EPS, build_neighbours, max_squared_move
+from .kernels.neighbours import build_neighbours, max_squared_move
+from .kernels.nodes import axis_halved_area
 
 KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
 MAX_NEIGHBOURS = 128
@@ -153,7 +154,7 @@ class Operators:
                                   self.lap_c, laplacian, laplacian and self.consistent)
         if laplacian:
             self.has_laplacian = True
-            np.multiply(self.area, np.where(x < AXIS_EPS, 0.5, 1.0), out=self.adjoint_weight)
+            axis_halved_area(x, self.area, self.adjoint_weight)
         if status:
             i = status - 1
             raise SimulationError(
