@@ -141,14 +141,16 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
       3. A^-1 by the written-out LDL^T (``spd_inverse5``), and the 1-norm condition number of A
          into ``cond[i]``;
       4. for each field, b = sum_j W_ij P_j (f_j - f_i) (f_j times the field's ``parity``, +1
-         even or -1 odd in x, for a mirror image) and D f_i = S A^-1 b, S = diag(1/s, 1/s,
-         1/s^2, 1/s^2, 1/s^2).
+         even or -1 odd in x, for a mirror image: the image's sign for an odd field, 1 for an
+         even one, so that one loop without a branch serves both) and D f_i = S A^-1 b,
+         S = diag(1/s, 1/s, 1/s^2, 1/s^2, 1/s^2).
 
     No pair weight is stored: in the solver each operator is applied once, right after its
     build, so storing weights would only add memory traffic.  For speed (measured, see
     docs/performance.md): each node's x, y, h, 1/h are packed side by side, so a neighbour costs
-    one cache line; the support's pairs are copied into contiguous scratch rows, so that the
-    kernel and moment loop vectorises (the fastmath flags allow only reassociation and fused
+    one cache line; the support's pairs are written into contiguous scratch rows in the
+    distance pass itself (a branch-free compaction), so that the kernel and moment loop
+    vectorises (the fastmath flags allow only reassociation and fused
     multiply-adds, so NaN and infinity keep their meaning); the scratch rows are one block.
 
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
@@ -177,9 +179,11 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
         width = max(width, start[i + 1] - start[i])
     # scratch rows in one block: separate small allocations may land 4 KiB apart, where the
     # loads of one row wait on stores to another (4K aliasing)
-    scratch = np.empty((7, width))
-    u_k, v_k, r2_k, inv_support_k, sign_k, w_k, t3_k = (
-        scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5], scratch[6])
+    scratch = np.empty((8, width))
+    u_k, v_k, r2_k, inv_support_k, sign_k, w_k, t3_k, ones_k = (
+        scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5], scratch[6],
+        scratch[7])
+    ones_k[:] = 1.0
     index_scratch = np.empty((2, width), np.uint32)
     keep = index_scratch[0]  # candidate slot of the k-th pair inside the support
     nbr_k = index_scratch[1]
@@ -300,12 +304,11 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
         s2 = inv_s * inv_s
         for f in range(n_fields):
             fi = fields[f, i]
-            odd = 0.5 * (1.0 - parity[f])  # 0 for an even field, 1 for an odd one
+            # an image of an odd field carries -f_j: the factor of f_j is the image's sign
+            factor = sign_k if parity[f] < 0.0 else ones_k
             b0 = b1 = b2 = b3 = b4 = 0.0
             for k in range(m):
-                # an image of an odd field carries -f_j: (1 - sign) odd f_j is then 2 f_j
-                fj = fields[f, nbr_k[k]]
-                df = fj - (1.0 - sign_k[k]) * odd * fj - fi
+                df = factor[k] * fields[f, nbr_k[k]] - fi
                 wdf = w_k[k] * df
                 u = u_k[k]
                 v = v_k[k]
