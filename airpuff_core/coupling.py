@@ -38,7 +38,7 @@ from .kernels.energy import jet_pressures
 from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_divergence, drift,
                             impose_cornea, interface_pressure_change, max_density_deviation,
                             max_speed, tait_pressure, tait_pressure_at)
-from .kernels.membrane import air_jet, cornea_polygon_volume
+from .kernels.membrane import cornea_polygon_volume
 from .kernels.hyperviscosity import hyperviscous_flow_increments, legendre_plan
 from .kernels.nodes import AXIS, CORNEA, WALL
 from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
@@ -511,10 +511,6 @@ class CoupledModel:
     def apex_displacement(self):
         """Inward displacement of the apex since t = 0 [m]."""
         return self.apex_y0 - self.Y[0]
-
-    def jet_pressure_apex(self):
-        """Air-jet pressure at the apex now, eq. (11) [Pa]."""
-        return air_jet(self.t, 0.0, *self.jet)
 
     def wall_volume_change(self):
         """Volume [m^3] by which the compliant walls have given way (0 for a rigid globe)."""

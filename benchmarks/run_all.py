@@ -14,8 +14,8 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from benchmarks import (bench_compile, bench_mfpm, bench_shell, bench_sweep, run_default,  # noqa: E402
-                        scaling)
+from benchmarks import (bench_compile, bench_mfpm, bench_shell, bench_sweep,  # noqa: E402
+                        run_default, scaling)
 
 
 def main(argv):
