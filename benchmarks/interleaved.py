@@ -18,7 +18,6 @@ import argparse
 import importlib
 import io
 import json
-import math
 import statistics
 import subprocess
 import sys
@@ -74,14 +73,8 @@ def compare_runs(old, resolution, repeat):
 
 def compare_mfpm(old, rounds, repeats=200):
     from airpuff_core.fluid import KAPPA, Operators
-    from airpuff_core.geometry import build_chamber
-    ch = build_chamber("sector", "isotropic", "paper", 7e-3, 2.04e-3, math.radians(60))
-    rng = np.random.default_rng(0)
-    moving = ch.kind == 0
-    clouds = [(ch.x + 0.01 * ch.h * rng.standard_normal(ch.n) * moving,
-               ch.y + 0.01 * ch.h * rng.standard_normal(ch.n) * moving) for _ in range(8)]
-    fields = np.array([np.cos(300 * ch.x + k) * np.sin(200 * ch.y) for k in range(4)])
-    parity = np.array([1.0, 1.0, -1.0, 1.0])
+    from benchmarks.bench_mfpm import moving_clouds
+    ch, clouds, fields, parity = moving_clouds("paper")
     out = np.empty((4, ch.n, 5))
     rates = {"old": [], "new": []}  # per CPU second
     operators = {"old": old.fluid.Operators(ch.h, ch.area, KAPPA),
