@@ -140,7 +140,7 @@ class RunResult:
                             {"units": spec.unit, "long_name": spec.description})
 
         attrs = global_attributes(
-            "airpuff: coupled membrane / MFPM simulation of the corneal air-puff test",
+            f"airpuff: coupled {p.cornea} / MFPM simulation of the corneal air-puff test",
             f"simulate ({p.resolution} resolution, t_end {p.t_end:g} ms)")
         attrs.update(provenance())  # airpuff, model and library versions, git commit
         attrs["parameters_json"] = json.dumps(p.to_dict(), sort_keys=True)

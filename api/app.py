@@ -306,5 +306,5 @@ def create_app(settings: Settings) -> FastAPI:
                             headers={"Retry-After": "2"})
 
     app.include_router(routes.build_router(settings, SweepRequest, bearer_scheme))
-    app.include_router(pages.router(settings, _describe))
+    app.include_router(pages.router(settings, SweepRequest, _describe))
     return app

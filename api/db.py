@@ -24,8 +24,22 @@ from typing import Any, Iterable, Iterator
 
 from .status import ENDED_JOB_STATUSES, JOB_STATUSES, POINT_RESULTS, POINT_STATUSES, sql_list
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 BUSY_TIMEOUT_MS = 30_000
+
+# Columns of ``points`` up to schema version 2 that nothing read (a point's parameters and wall
+# time are in its file, its job's grid in ``job_points``): ``init`` drops them from an older
+# database.
+DROPPED_POINT_COLUMNS = ("params_json", "wall_s", "computed_by", "finished_at")
+
+POINTS_TABLE = f"""
+CREATE TABLE IF NOT EXISTS points (
+    key          TEXT PRIMARY KEY,
+    status       TEXT NOT NULL CHECK (status IN ({sql_list(("pending",) + POINT_RESULTS)})),
+    message      TEXT,
+    metrics_json TEXT,
+    submissions  INTEGER NOT NULL DEFAULT 0
+)"""
 
 SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS jobs (
@@ -41,17 +55,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     error        TEXT,
     retry_failed INTEGER NOT NULL DEFAULT 0
 );
-CREATE TABLE IF NOT EXISTS points (
-    key          TEXT PRIMARY KEY,
-    params_json  TEXT NOT NULL,
-    status       TEXT NOT NULL CHECK (status IN ({sql_list(("pending",) + POINT_RESULTS)})),
-    message      TEXT,
-    metrics_json TEXT,
-    wall_s       REAL,
-    computed_by  TEXT,
-    submissions  INTEGER NOT NULL DEFAULT 0,
-    finished_at  REAL
-);
+{POINTS_TABLE};
 CREATE TABLE IF NOT EXISTS job_points (
     job_id     TEXT NOT NULL REFERENCES jobs(id),
     idx        INTEGER NOT NULL,
@@ -98,7 +102,8 @@ def write(con: sqlite3.Connection) -> Iterator[sqlite3.Connection]:
 
 
 def init(path: str | Path) -> None:
-    """Create the database (and its folder) if needed."""
+    """Create the database (and its folder) if needed, or bring one of an older schema version to
+    this one, keeping its jobs and points."""
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     con = connect(path)
     try:
@@ -106,12 +111,30 @@ def init(path: str | Path) -> None:
             for stmt in SCHEMA.split(";"):
                 if stmt.strip():
                     con.execute(stmt)
-            columns = {r["name"] for r in con.execute("PRAGMA table_info(jobs)")}
-            if "retry_failed" not in columns:  # a database of schema version 1
+            if "retry_failed" not in _columns(con, "jobs"):  # a database of schema version 1
                 con.execute("ALTER TABLE jobs ADD COLUMN retry_failed INTEGER NOT NULL DEFAULT 0")
+            if set(DROPPED_POINT_COLUMNS) & _columns(con, "points"):  # schema version 1 or 2
+                _rebuild_points_table(con)
             con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
     finally:
         con.close()
+
+
+def _columns(con: sqlite3.Connection, table: str) -> set[str]:
+    return {r["name"] for r in con.execute(f"PRAGMA table_info({table})")}
+
+
+def _rebuild_points_table(con: sqlite3.Connection) -> None:
+    """``points`` without ``DROPPED_POINT_COLUMNS``, its rows kept: a new table, the rows copied,
+    the old table dropped and the new one renamed (SQLite's way to change a table in ways ALTER
+    TABLE cannot, https://www.sqlite.org/lang_altertable.html; no other table refers to
+    ``points``).  Inside the caller's write transaction."""
+    kept = "key, status, message, metrics_json, submissions"
+    con.execute(POINTS_TABLE.replace("CREATE TABLE IF NOT EXISTS points",
+                                     "CREATE TABLE points_new"))
+    con.execute(f"INSERT INTO points_new ({kept}) SELECT {kept} FROM points")
+    con.execute("DROP TABLE points")
+    con.execute("ALTER TABLE points_new RENAME TO points")
 
 
 def now() -> float:
@@ -285,15 +308,14 @@ def cancel_points_of_cancelled_jobs(con) -> None:
                     "(SELECT id FROM jobs WHERE status = 'cancelled')")
 
 
-def upsert_pending_points(con, params_json_by_key: dict[str, str], submitted: bool) -> None:
-    """A ``points`` row, status pending, for each key (its parameters as JSON); ``submitted``
-    counts one submission to the cluster."""
+def upsert_pending_points(con, keys: Iterable[str], submitted: bool) -> None:
+    """A ``points`` row, status pending, for each key; ``submitted`` counts one submission to
+    the cluster."""
     with write(con):
         con.executemany(
-            "INSERT INTO points (key, params_json, status, submissions) "
-            "VALUES (?, ?, 'pending', ?) ON CONFLICT (key) DO UPDATE SET "
-            "status = 'pending', submissions = submissions + ?",
-            [(k, text, int(submitted), int(submitted)) for k, text in params_json_by_key.items()])
+            "INSERT INTO points (key, status, submissions) VALUES (?, 'pending', ?) "
+            "ON CONFLICT (key) DO UPDATE SET status = 'pending', submissions = submissions + ?",
+            [(k, int(submitted), int(submitted)) for k in keys])
 
 
 def record_point_results(con, results: Iterable[tuple[str, str | None, dict]]) -> None:
@@ -301,16 +323,13 @@ def record_point_results(con, results: Iterable[tuple[str, str | None, dict]]) -
     record)``.  The ``points`` row gets the record; every running job waiting for the key gets
     the status and message (``reused`` unless it is the submitting job and the point was
     computed)."""
-    t = now()
     with write(con):
         for key, job_id, rec in results:
             computed = bool(rec.get("computed", True))
             con.execute(
-                "UPDATE points SET status = ?, message = ?, metrics_json = ?, wall_s = ?, "
-                "computed_by = CASE WHEN ? THEN ? ELSE computed_by END, finished_at = ? "
-                "WHERE key = ?",
+                "UPDATE points SET status = ?, message = ?, metrics_json = ? WHERE key = ?",
                 (rec["status"], rec.get("message") or None, json.dumps(rec.get("metrics") or {}),
-                 rec.get("wall_s"), computed, job_id, t, key))
+                 key))
             con.execute(
                 "UPDATE job_points SET status = ?, message = ?, "
                 "reused = CASE WHEN job_id = ? AND ? THEN 0 ELSE 1 END "

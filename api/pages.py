@@ -28,7 +28,7 @@ from starlette.concurrency import run_in_threadpool
 from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, SWEPT
 from airpuff_core.result import METRICS
 
-from . import auth, db, figures, routes, schemas, sweep_form
+from . import auth, db, figures, routes, sweep_form
 from .html import badge, esc, number, page, progress, table, watch_state, when
 from .settings import Settings
 from .status import ACTIVE_JOB_STATUSES
@@ -64,11 +64,13 @@ def _safe_next(target: str | None) -> str:
     return target
 
 
-def router(settings: Settings, describe: Callable[[dict], dict]) -> APIRouter:
-    """The pages of the service in ``settings``; ``api.app`` includes this router.  ``describe``
-    turns a validation error into the API's ``{"loc", "field", "msg", "type"}`` (the messages of
-    a 422), so the form shows the same words."""
-    SweepRequest = schemas.sweep_request_model(settings.max_points)
+def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  # noqa: N803
+           ) -> APIRouter:
+    """The pages of the service in ``settings``; ``api.app`` includes this router.
+    ``SweepRequest`` is the body model of ``POST /sweeps`` (``api.app`` builds it once for both),
+    which validates the sweep form too; ``describe`` turns a validation error into the API's
+    ``{"loc", "field", "msg", "type"}`` (the messages of a 422), so the form shows the same
+    words."""
     token = settings.token
 
     r = APIRouter(include_in_schema=False)

@@ -137,7 +137,8 @@ def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
 def point_records(con: sqlite3.Connection, job_id: str) -> list[dict[str, Any]]:
     """The points of a job as ``GET /sweeps/{id}/metrics`` reports them (``schemas.PointRecord``):
     index, key, the four swept values, status, message, reused and every metric (None where
-    missing).  The pages (``api.pages``) show the same records."""
+    missing).  The pages (``api.pages``) show the same records; ``POST /identify``
+    interpolates in them."""
     points = []
     for p in db.job_points(con, job_id):
         rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
@@ -209,16 +210,11 @@ def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = D
     if row["status"] != "done":
         raise HTTPException(409, f"job {body.job_id} is {row['status']}; identification "
                                  "needs a finished (done) sweep")
-    records = []
-    for p in db.job_points(con, body.job_id):
-        rec = {name: p[name] for name in SWEPT}
-        rec["status"] = p["status"]
-        rec.update(db.loads(p["metrics_json"]) or {} if p["status"] == "ok" else {})
-        records.append(rec)
     measurement = {k: (v["value"], v["sigma"])
                    for k, v in body.measurement.model_dump().items() if v is not None}
     try:
-        table = SweepTable.from_records(json.loads(row["spec_json"]), records)
+        table = SweepTable.from_records(json.loads(row["spec_json"]),
+                                        point_records(con, body.job_id))
         est = identify(table, measurement, body.thickness, body.pmax)
     except IdentifyError as err:
         loc = ["body", "measurement", err.field] if err.field in MEASURABLE \

@@ -57,7 +57,6 @@ from sweep.storage import INFRASTRUCTURE_RETRIES, one_line_message
 
 from . import db
 from .settings import Settings
-from .status import POINT_RESULTS
 
 log = logging.getLogger("airpuff.runner")
 
@@ -269,8 +268,8 @@ class Runner:
             if not db.claim_job(self.con, job_id):
                 continue
             try:
-                spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
-                points = spec.points()
+                spec = SweepSpec.from_dict(json.loads(job["spec_json"]), validate=False)
+                points = spec.validated_points()  # this version can run every point
                 self._warm(spec.options)
                 self._dispatch(job_id, job["seq"], points, bool(job["retry_failed"]))
             except Exception as err:  # noqa: BLE001 - a stored spec this version cannot run
@@ -296,37 +295,24 @@ class Runner:
                 db.set_job_point_key(self.con, job_id, row["idx"], key)
             if key in self.futures or key in submit or key in on_disk:
                 continue  # already computing for another job (or listed twice)
-            stored = self._stored(key, retry_failed)
-            if stored is not None:
-                reused.append((stored["status"], stored["message"], job_id, key))
-                continue
             found = read_point(self.settings.points_dir, key)  # None if unusable (set aside)
-            if reusable(found, retry_failed):  # a file written just before a crash (no record)
-                on_disk[key] = (params, {**found, "computed": False})
-            else:
+            if not reusable(found, retry_failed):
                 submit[key] = params
+                continue
+            row = db.point_row(self.con, key)
+            if row is not None and row["status"] == found["status"]:  # its result is recorded
+                reused.append((row["status"], row["message"], job_id, key))
+            else:  # a file written just before a crash, whose record did not reach the database
+                on_disk[key] = {**found, "computed": False}
         if reused:
             db.mark_reused(self.con, reused)
         if on_disk:
-            self._ensure_point_rows({k: p for k, (p, _) in on_disk.items()})
-            self._record([(k, job_id, rec) for k, (_, rec) in on_disk.items()])
+            db.upsert_pending_points(self.con, on_disk, submitted=False)
+            self._record([(k, job_id, rec) for k, rec in on_disk.items()])
         self._submit(job_id, seq, submit)
         n_reused = len(reused) + len(on_disk)
         log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
                  job_id, len(points), n_reused, len(submit), len(pending) - n_reused - len(submit))
-
-    def _stored(self, key: str, retry_failed: bool = False):
-        """The points row of ``key`` if its result is final and may be reused: its file is still
-        on disk and can be read, and a failure is the model's and no retry is asked for."""
-        from sweep.storage import read_point, reusable
-
-        row = db.point_row(self.con, key)
-        if row is None or row["status"] not in POINT_RESULTS:
-            return None
-        record = read_point(self.settings.points_dir, key)  # sets an unusable file aside
-        if record is None or record["status"] != row["status"]:
-            return None
-        return row if reusable(record, retry_failed) else None
 
     def _submit(self, job_id: str, seq: int, submit: dict) -> None:
         """Submit ``{key: RunParams}`` to the cluster for ``job_id``."""
@@ -334,20 +320,13 @@ class Runner:
             return
         from sweep.worker import compute_point
 
-        self._ensure_point_rows(submit, submitted=True)
+        db.upsert_pending_points(self.con, submit, submitted=True)
         for key, params in submit.items():
             self.futures[key] = self.client.submit(
                 compute_point, params, key, pure=False, retries=self.settings.retries,
                 priority=-int(seq), key=f"airpuff-point-{key}-{uuid.uuid4().hex[:8]}")
             self.trigger[key] = job_id
             self.params[key] = params
-
-    def _ensure_point_rows(self, params_by_key: dict, submitted: bool = False) -> None:
-        """A ``points`` row (status pending) for each ``{key: RunParams}``; ``submitted`` counts
-        a submission."""
-        db.upsert_pending_points(
-            self.con, {k: json.dumps(p.to_dict(), sort_keys=True) for k, p in params_by_key.items()},
-            submitted)
 
     def _collect(self) -> None:
         """Finished futures: store each point's file and record its result."""
@@ -357,6 +336,14 @@ class Runner:
         done = [(k, f) for k, f in self.futures.items() if f.done()]
         if not done:
             return
+        needed: set[str] | None = None  # keys a job still waits for: read once, when first asked
+
+        def still_needed(key: str) -> bool:
+            nonlocal needed
+            if needed is None:
+                needed = db.needed_point_keys(self.con)
+            return key in needed
+
         records = []
         for key, fut in done:
             self.futures.pop(key)
@@ -365,7 +352,7 @@ class Runner:
             if fut.status == "finished":
                 rec = self._save(save_point, key, fut)
             elif fut.status == "cancelled":  # lost with the scheduler, or cancelled by us
-                if (key in db.needed_point_keys(self.con)
+                if (still_needed(key)
                         and self.lost.get(key, 0) < MAX_LOST_RESUBMITS):
                     self.lost[key] = self.lost.get(key, 0) + 1
                     self._submit(job_id, db.job_seq(self.con, job_id), {key: params})
@@ -377,7 +364,7 @@ class Runner:
                                              key)
             fut.release()
             if (rec["status"] == "failed" and failure_kind(rec) == "infrastructure"
-                    and params is not None and key in db.needed_point_keys(self.con)
+                    and params is not None and still_needed(key)
                     and self.infrastructure_retries.get(key, 0) < INFRASTRUCTURE_RETRIES):
                 self.infrastructure_retries[key] = self.infrastructure_retries.get(key, 0) + 1
                 log.warning("point %s: %s; submitting it again (%d of %d)", key, rec["message"],
@@ -422,7 +409,8 @@ class Runner:
             job_id = job["id"]
             counts = db.job_point_counts(self.con, job_id)
             try:
-                spec = SweepSpec.from_dict(json.loads(job["spec_json"]))
+                # validated when the job started, by this process (_start_queued)
+                spec = SweepSpec.from_dict(json.loads(job["spec_json"]), validate=False)
                 t0 = time.perf_counter()
                 keys = db.job_point_keys(self.con, job_id)
                 write_sweep(spec, self.settings.points_dir, self.settings.job_dataset(job_id),

@@ -47,20 +47,28 @@ def _number(name: str, token: str, whole: str) -> float:
     return x
 
 
+def _axis_parts(name: str, text: str) -> tuple[list[str], int | None]:
+    """The written parts of an axis in the syntax of :func:`parse_axis`: ``([start, stop], num)``
+    for ``start:stop:num``, ``(items, None)`` for a comma list (texts stripped, not yet numbers).
+    Raises ParameterError on a malformed ``start:stop:num`` or ``num``."""
+    text = str(text).strip()
+    if ":" in text:
+        parts = [part.strip() for part in text.split(":")]
+        if len(parts) != 3:
+            raise ParameterError(name, text, AXIS_SYNTAX)
+        try:
+            return parts[:2], int(parts[2])
+        except ValueError:
+            raise ParameterError(name, text, "start:stop:num with num a whole number >= 1") from None
+    return [t.strip() for t in text.split(",")], None
+
+
 def axis_length(name: str, text: str) -> int:
     """The number of values of an axis in the syntax of :func:`parse_axis`, without making them
     (``10:30:100000000`` answers at once).  Raises ParameterError on a malformed ``num``; the
     values themselves are checked by :func:`parse_axis`."""
-    text = str(text).strip()
-    if ":" in text:
-        parts = text.split(":")
-        if len(parts) != 3:
-            raise ParameterError(name, text, AXIS_SYNTAX)
-        try:
-            return int(parts[2].strip())
-        except ValueError:
-            raise ParameterError(name, text, "start:stop:num with num a whole number >= 1") from None
-    return text.count(",") + 1
+    items, num = _axis_parts(name, text)
+    return len(items) if num is None else num
 
 
 def check_grid_size(lengths: dict[str, int], max_points: int, hint: str = "") -> int:
@@ -103,25 +111,17 @@ def axis_values(name: str, text: str, max_num: int | None = None) -> list[float]
     text = str(text).strip()
     if not text:
         raise ParameterError(name, text, AXIS_SYNTAX)
-    if ":" in text:
-        parts = text.split(":")
-        if len(parts) != 3:
-            raise ParameterError(name, text, AXIS_SYNTAX)
-        start = _number(name, parts[0].strip(), text)
-        stop = _number(name, parts[1].strip(), text)
-        try:
-            num = int(parts[2].strip())
-        except ValueError:
-            raise ParameterError(name, text, "start:stop:num with num a whole number >= 1") from None
+    items, num = _axis_parts(name, text)
+    if num is not None:
+        start, stop = (_number(name, item, text) for item in items)
         if num < 1 or (num == 1 and start != stop):
             raise ParameterError(name, text, "start:stop:num with num >= 2 (num = 1 only if start = stop)")
         if max_num is not None and num > max_num:
             raise ParameterError(name, text, f"start:stop:num with num at most {max_num}")
         return [_round(v) for v in np.linspace(start, stop, num)]
-    tokens = [t.strip() for t in text.split(",")]
-    if any(t == "" for t in tokens):
+    if any(t == "" for t in items):
         raise ParameterError(name, text, AXIS_SYNTAX)
-    return [_round(_number(name, t, text)) for t in tokens]
+    return [_round(_number(name, t, text)) for t in items]
 
 
 def _check_unique(name: str, values: list[float]) -> None:
@@ -239,10 +239,11 @@ class SweepSpec:
         return d
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "SweepSpec":
+    def from_dict(cls, d: Mapping[str, Any], validate: bool = True) -> "SweepSpec":
         """Inverse of :meth:`to_dict`; also accepts a single number for an axis.  Missing axes
         take the parameter's default; unknown top-level keys raise ParameterError.  The result
-        is validated."""
+        is validated unless ``validate`` is False: for a caller that validates it next with
+        :meth:`validated_points` (building the grid once) or that stored it validated."""
         known = set(SWEPT) | {"options"}
         unknown = sorted(set(d) - known)
         if unknown:
@@ -252,4 +253,5 @@ class SweepSpec:
             if name in d:
                 kwargs[name] = d[name]
         kwargs["options"] = dict(d.get("options") or {})
-        return cls(**kwargs).validate()
+        spec = cls(**kwargs)
+        return spec.validate() if validate else spec

@@ -12,11 +12,16 @@ ROOT = Path(__file__).resolve().parents[1]
 os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
 
 
+def airpuff_argv(*args) -> list[str]:
+    """The command line of the real `airpuff` command with ``args`` (as `python -m api.cli`)."""
+    return [sys.executable, "-m", "api.cli", *args]
+
+
 def airpuff(*args, timeout=600, cwd=None):
     """Run the real `airpuff` command (as `python -m api.cli`) and return the CompletedProcess."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.run([sys.executable, "-m", "api.cli", *args], capture_output=True, text=True,
+    return subprocess.run(airpuff_argv(*args), capture_output=True, text=True,
                           timeout=timeout, cwd=cwd or ROOT, env=env)
 
 

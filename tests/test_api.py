@@ -12,27 +12,24 @@ import socket
 import sqlite3
 import subprocess
 import sys
-import threading
 
 import pytest
 
 from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, PRESET_PARAMETERS, SWEPT
 from airpuff_core.result import METRICS
 try:  # tests/ may or may not be a package
-    from .test_api_support import ServerProcess
+    from .test_api_support import ServerProcess, post_at_once
 except ImportError:
-    from test_api_support import ServerProcess
+    from test_api_support import ServerProcess, post_at_once
 
 MAX_POINTS = 50  # this server's --max-points: small, so schemathesis cannot queue big grids
 
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    s = ServerProcess(tmp_path_factory.mktemp("api") / "data", "--no-runner",
-                      "--max-points", str(MAX_POINTS))
-    s.start()
-    yield s
-    s.stop()
+    with ServerProcess(tmp_path_factory.mktemp("api") / "data", "--no-runner",
+                       "--max-points", str(MAX_POINTS)).running() as s:
+        yield s
 
 
 GOOD = {"E0": [0.4, 0.6], "IOP": [12.0, 16.0, 20.0], "thickness": [0.5], "pmax": [10.0],
@@ -193,19 +190,7 @@ def test_dataset_of_unfinished_job_is_409_and_cancel(client):
 
 
 def test_identical_submissions_at_the_same_moment(client, server):
-    barrier = threading.Barrier(4)
-    results = [None] * 4
-
-    def post(k):
-        with server.client() as c:
-            barrier.wait()
-            results[k] = c.post("/sweeps", json=GOOD)
-
-    threads = [threading.Thread(target=post, args=(k,)) for k in range(4)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    results = post_at_once(server, [GOOD] * 4)
     assert all(r.status_code == 202 for r in results), [r.text for r in results]
     ids = [r.json()["id"] for r in results]
     assert len(set(ids)) == 4

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import math
-import threading
 import time
 
 import numpy as np
@@ -18,9 +17,9 @@ from airpuff_core.params import RunParams
 from airpuff_core.result import METRICS
 from sweep.storage import failed_path, point_key, point_path
 try:  # tests/ may or may not be a package
-    from .test_api_support import ServerProcess, submit, wait_job
+    from .test_api_support import ServerProcess, post_at_once, submit, wait_job
 except ImportError:
-    from test_api_support import ServerProcess, submit, wait_job
+    from test_api_support import ServerProcess, post_at_once, submit, wait_job
 
 # Short coarse runs: about a second or two of solver time per point.
 OPTIONS = {"resolution": "coarse", "t_end": 1.0}
@@ -121,19 +120,7 @@ def test_job_runs_and_metrics_match_point_files(client, server, tmp_path):
 def test_identical_jobs_at_the_same_moment_compute_each_point_once(server):
     body = {"E0": [0.45, 0.55], "IOP": [14.0, 17.0], "thickness": [0.55], "pmax": [10.0],
             **OPTIONS}
-    barrier = threading.Barrier(2)
-    answers = [None, None]
-
-    def post(k):
-        with server.client() as c:
-            barrier.wait()
-            answers[k] = c.post("/sweeps", json=body)
-
-    threads = [threading.Thread(target=post, args=(k,)) for k in range(2)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    answers = post_at_once(server, [body, body])
     assert [a.status_code for a in answers] == [202, 202], [a.text for a in answers]
     ids = [a.json()["id"] for a in answers]
     assert ids[0] != ids[1]

@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Iterator
@@ -113,12 +114,12 @@ class ServerProcess:
             self.kill()
             raise AssertionError(f"server ignored signal {sig} for {timeout} s:\n"
                                  + self.log_text()[-3000:])
-        lingering = _wait_group_empty(pgid, timeout)
+        lingering = not group_gone(pgid, timeout)
         elapsed = time.monotonic() - t0
         self._log.close()
         self.proc = None
         if lingering:
-            _killpg(pgid)
+            signal_group(pgid, signal.SIGKILL)
             raise AssertionError("processes of the server outlived it (killed now)")
         return elapsed
 
@@ -126,35 +127,41 @@ class ServerProcess:
         """Last resort (also on test failure): SIGKILL the whole process group."""
         if self.proc is None:
             return
-        _killpg(self.proc.pid)
-        try:
-            self.proc.wait(30)
-        except subprocess.TimeoutExpired:
-            pass
-        _wait_group_empty(self.proc.pid, 30)
+        kill_group(self.proc)
         self._log.close()
         self.proc = None
 
 
-def _killpg(pgid: int) -> None:
+def signal_group(pgid: int, sig: int) -> None:
+    """Send ``sig`` to every process of the group ``pgid`` (none left: nothing to do)."""
     try:
-        os.killpg(pgid, signal.SIGKILL)
-    except ProcessLookupError:
+        os.killpg(pgid, sig)
+    except (ProcessLookupError, PermissionError):
         pass
 
 
-def _wait_group_empty(pgid: int, timeout: float) -> bool:
-    """True if processes of the group are still alive after ``timeout`` seconds."""
+def kill_group(proc: subprocess.Popen) -> None:
+    """SIGKILL every process of the group of ``proc`` (started in its own session) and wait
+    (up to 30 s) for them to be gone."""
+    signal_group(proc.pid, signal.SIGKILL)
+    try:
+        proc.wait(30)
+    except subprocess.TimeoutExpired:
+        pass
+    group_gone(proc.pid, 30)
+
+
+def group_gone(pgid: int, timeout: float) -> bool:
+    """True once no process of the group ``pgid`` is left; False if some still live after
+    ``timeout`` seconds."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         try:
             os.killpg(pgid, 0)
-        except ProcessLookupError:
-            return False
-        except PermissionError:
-            return False
-        time.sleep(0.2)
-    return True
+        except (ProcessLookupError, PermissionError):
+            return True
+        time.sleep(0.1)
+    return False
 
 
 def wait_job(client: httpx.Client, job_id: str, until=("done", "failed", "cancelled"),
@@ -169,6 +176,25 @@ def wait_job(client: httpx.Client, job_id: str, until=("done", "failed", "cancel
         if time.monotonic() > deadline:
             raise AssertionError(f"job {job_id} still {job['status']} after {timeout} s: {job}")
         time.sleep(poll)
+
+
+def post_at_once(server: ServerProcess, bodies: list[dict]) -> list[httpx.Response]:
+    """``POST /sweeps`` of each body from its own thread and connection, all released at the
+    same moment (a barrier): the answers, in the order of ``bodies``."""
+    barrier = threading.Barrier(len(bodies))
+    answers: list = [None] * len(bodies)
+
+    def post(k: int) -> None:
+        with server.client() as c:
+            barrier.wait()
+            answers[k] = c.post("/sweeps", json=bodies[k])
+
+    threads = [threading.Thread(target=post, args=(k,)) for k in range(len(bodies))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return answers
 
 
 def submit(client: httpx.Client, body: dict) -> str:

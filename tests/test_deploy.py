@@ -35,11 +35,11 @@ import yaml
 try:  # tests/ may or may not be a package
     from .conftest import airpuff
     from .test_api_jobs import check_against_files
-    from .test_api_support import ServerProcess, wait_job
+    from .test_api_support import ServerProcess, group_gone, kill_group, signal_group, wait_job
 except ImportError:
     from conftest import airpuff
     from test_api_jobs import check_against_files
-    from test_api_support import ServerProcess, wait_job
+    from test_api_support import ServerProcess, group_gone, kill_group, signal_group, wait_job
 
 REPO = Path(__file__).resolve().parents[1]
 COMPOSE = REPO / "docker" / "compose.yaml"
@@ -148,13 +148,13 @@ class Proc:
     def stop(self, timeout: float = 30.0) -> float:
         """SIGTERM to the group; the seconds until every process of the group is gone."""
         t0 = time.monotonic()
-        _signal_group(self.proc.pid, signal.SIGTERM)
+        signal_group(self.proc.pid, signal.SIGTERM)
         try:
             self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
             raise AssertionError(f"{self.name} ignored SIGTERM for {timeout} s:\n"
                                  + self.log()[-3000:]) from None
-        assert _group_gone(self.proc.pid, timeout), f"processes of {self.name} outlived it"
+        assert group_gone(self.proc.pid, timeout), f"processes of {self.name} outlived it"
         self.stopped = True
         self._log.close()
         return time.monotonic() - t0
@@ -163,31 +163,8 @@ class Proc:
         """Last resort, always run: SIGKILL the whole group (unless it stopped cleanly)."""
         if self.stopped:
             return
-        _signal_group(self.proc.pid, signal.SIGKILL)
-        try:
-            self.proc.wait(30)
-        except subprocess.TimeoutExpired:
-            pass
-        _group_gone(self.proc.pid, 30)
+        kill_group(self.proc)
         self._log.close()
-
-
-def _signal_group(pgid: int, sig: int) -> None:
-    try:
-        os.killpg(pgid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-def _group_gone(pgid: int, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            os.killpg(pgid, 0)
-        except (ProcessLookupError, PermissionError):
-            return True
-        time.sleep(0.1)
-    return False
 
 
 # -- the tests -----------------------------------------------------------------------------------

@@ -42,6 +42,7 @@ from selenium import webdriver  # noqa: E402
 from selenium.common.exceptions import (  # noqa: E402
     JavascriptException,
     StaleElementReferenceException,
+    WebDriverException,
 )
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support import expected_conditions  # noqa: E402
@@ -111,7 +112,11 @@ def click_and_wait(driver, button_id: str) -> None:
     """Click a submit button and wait for the next page (a click does not wait for it)."""
     old_page = driver.find_element(By.TAG_NAME, "html")
     driver.find_element(By.ID, button_id).click()
-    WebDriverWait(driver, 60).until(expected_conditions.staleness_of(old_page))
+    # Asked about the old page while the next one replaces it, Chrome may answer "Node with given
+    # id does not belong to the document" (a WebDriverException) instead of a stale element: ask
+    # again until the old page is reported stale.
+    WebDriverWait(driver, 60, ignored_exceptions=(WebDriverException,)).until(
+        expected_conditions.staleness_of(old_page))
 
 
 def login(driver, token: str) -> None:

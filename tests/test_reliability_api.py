@@ -197,10 +197,9 @@ TOKEN = "tok-3f9a2c"
 
 @pytest.fixture(scope="module")
 def guarded(tmp_path_factory):
-    s = ServerProcess(tmp_path_factory.mktemp("guarded") / "data", "--no-runner", token=TOKEN)
-    s.start()
-    yield s
-    s.stop()
+    with ServerProcess(tmp_path_factory.mktemp("guarded") / "data", "--no-runner",
+                       token=TOKEN).running() as s:
+        yield s
 
 
 def test_token_is_checked_before_the_body_and_docs_load_their_schema(guarded):

@@ -27,20 +27,15 @@ SHORT = {"resolution": "coarse", "t_end": 1.0}  # ms
 CORE = Path(__file__).resolve().parents[1] / "airpuff_core"
 
 
-@pytest.fixture(scope="module")
-def client(dask_client):
-    return dask_client
-
-
 def damaged_records(points_dir: Path) -> list[dict]:
     return [json.loads(p.read_text()) for p in sorted((points_dir / DAMAGED_SUBDIR).glob("*.json"))]
 
 
-def test_unreadable_point_files_are_moved_aside_and_recomputed(client, tmp_path):
+def test_unreadable_point_files_are_moved_aside_and_recomputed(dask_client, tmp_path):
     """Items 1 and 2: a truncated point file and a garbage failure record count as missing, also
     when the damage happens after the stored points were read (found when combining)."""
     spec = SweepSpec(E0=[0.4, 0.6], options=dict(SHORT)).validate()
-    first = run_sweep(spec, tmp_path, client=client)
+    first = run_sweep(spec, tmp_path, client=dask_client)
     assert (first.computed, first.failed) == (2, 0)
     points = tmp_path / "points"
     k_truncated, k_garbage = (point_key(p) for p in spec.points())
@@ -51,10 +46,10 @@ def test_unreadable_point_files_are_moved_aside_and_recomputed(client, tmp_path)
     point_path(points, k_garbage).unlink()
     failed_path(points, k_garbage).write_bytes(os.urandom(300))  # garbage record
 
-    again = run_sweep(spec, tmp_path, client=client, retry_failed=True)  # --retry-failed
+    again = run_sweep(spec, tmp_path, client=dask_client, retry_failed=True)  # --retry-failed
     assert (again.computed, again.reused, again.failed) == (2, 0, 0)
     truncated.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 64)  # garbage behind a valid magic
-    resumed = run_sweep(spec, tmp_path, client=client)  # a plain resume
+    resumed = run_sweep(spec, tmp_path, client=dask_client)  # a plain resume
     assert (resumed.computed, resumed.reused, resumed.failed) == (1, 1, 0)
 
     def damage_after_reading(record, counts):  # after the stored points were read, before combining
@@ -62,7 +57,7 @@ def test_unreadable_point_files_are_moved_aside_and_recomputed(client, tmp_path)
             with open(point_path(points, k_garbage), "r+b") as fh:
                 fh.truncate(1000)
 
-    late = run_sweep(spec, tmp_path, client=client, progress=damage_after_reading)
+    late = run_sweep(spec, tmp_path, client=dask_client, progress=damage_after_reading)
     assert (late.computed, late.reused, late.failed) == (1, 1, 0)
     records = damaged_records(points)
     assert sorted(r["key"] for r in records) == sorted([k_truncated, k_garbage, k_truncated,
@@ -94,12 +89,12 @@ def test_model_version_hashes_code_not_comments(tmp_path):
     assert model_version_of(copy) not in (model_version(), changed)
 
 
-def test_a_stored_point_of_another_model_version_is_not_reused(client, tmp_path):
+def test_a_stored_point_of_another_model_version_is_not_reused(dask_client, tmp_path):
     """Item 3: a point file whose model version is not this one (here: edited, with a DA of
     9.99) is moved aside and recomputed; files carry their provenance, and sweep.nc each
     point's; the outcome says how many points were reused."""
     spec = SweepSpec(E0=[0.5], IOP=[14.0, 18.0], options=dict(SHORT)).validate()
-    run_sweep(spec, tmp_path, client=client)
+    run_sweep(spec, tmp_path, client=dask_client)
     points = tmp_path / "points"
     key = point_key(spec.points()[0])
     path = point_path(points, key)
@@ -115,7 +110,7 @@ def test_a_stored_point_of_another_model_version_is_not_reused(client, tmp_path)
     path.unlink()
     ds.to_netcdf(path, engine="netcdf4")
 
-    again = run_sweep(spec, tmp_path, client=client)
+    again = run_sweep(spec, tmp_path, client=dask_client)
     assert (again.computed, again.reused) == (1, 1)
     (record,) = damaged_records(points)
     assert record["key"] == key and "0ld0ld0ld0ld" in record["reason"]
@@ -130,7 +125,7 @@ def test_a_stored_point_of_another_model_version_is_not_reused(client, tmp_path)
         assert combined.attrs["point_files"] == "points/<point_key>.nc"
 
 
-def test_failures_of_the_infrastructure_are_rerun_those_of_the_model_kept(client, tmp_path):
+def test_failures_of_the_infrastructure_are_rerun_those_of_the_model_kept(dask_client, tmp_path):
     """Item 6: a write error (a directory where the point file should go: an OSError on the
     rename, as a full disk gives) is retried automatically and never reused; the solver's own
     verdict is reused unless --retry-failed."""
@@ -143,7 +138,7 @@ def test_failures_of_the_infrastructure_are_rerun_those_of_the_model_kept(client
     blocker = point_path(points, infra_key)
     blocker.mkdir(parents=True)
 
-    first = run_sweep(spec, tmp_path, client=client)
+    first = run_sweep(spec, tmp_path, client=dask_client)
     assert (first.computed, first.failed) == (2, 2)
     model_rec = json.loads(failed_path(points, model_key).read_text())
     infra_rec = json.loads(failed_path(points, infra_key).read_text())
@@ -153,13 +148,13 @@ def test_failures_of_the_infrastructure_are_rerun_those_of_the_model_kept(client
     assert str(tmp_path) not in infra_rec["message"]  # no path of this machine in a message
 
     blocker.rmdir()  # the disk has room again
-    second = run_sweep(spec, tmp_path, client=client)
+    second = run_sweep(spec, tmp_path, client=dask_client)
     assert (second.computed, second.reused, second.failed) == (1, 1, 1)  # the model's kept
-    third = run_sweep(spec, tmp_path, client=client, retry_failed=True)
+    third = run_sweep(spec, tmp_path, client=dask_client, retry_failed=True)
     assert (third.computed, third.reused, third.failed) == (1, 1, 1)  # asked: run again
 
 
-def test_combining_clears_stale_temporary_files(client, tmp_path):
+def test_combining_clears_stale_temporary_files(dask_client, tmp_path):
     """Item 7: a kill during combining leaves `.sweep.nc.*.tmp`; the next combine removes it
     (if older than any combine takes), and a failed write leaves none."""
     stale = tmp_path / ".sweep.nc.abc123.tmp"
@@ -169,7 +164,7 @@ def test_combining_clears_stale_temporary_files(client, tmp_path):
     old = time.time() - 2 * 3600
     os.utime(stale, (old, old))
     spec = SweepSpec(E0=[0.5], options=dict(SHORT)).validate()
-    run_sweep(spec, tmp_path, client=client)
+    run_sweep(spec, tmp_path, client=dask_client)
     assert not stale.exists() and fresh.exists()
 
     target = tmp_path / "x.bin"

@@ -258,6 +258,7 @@ def test_shell_run_parameters_round_trip_through_netcdf(tmp_path):
     with xr.open_dataset(path) as ds:
         assert ds.attrs["cornea"] == "shell" and ds.attrs["limbus"] == "pinned"
         assert ds.attrs["model"] == "clinical"
+        assert ds.attrs["title"].startswith("airpuff: coupled shell / MFPM")
         assert params_from_dataset(ds) == params
         D = ds.attrs["solver_bending_rigidity_N_m"]
     assert D == pytest.approx(plate_rigidity(0.5e6, 0.5e-3, 0.5), rel=1e-12)

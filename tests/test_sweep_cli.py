@@ -18,14 +18,15 @@ import xarray as xr
 from sweep.grid import SweepSpec
 from sweep.storage import point_key, point_path
 
+try:  # tests/ may or may not be a package
+    from .conftest import airpuff_argv
+except ImportError:
+    from conftest import airpuff_argv
+
 # Points of 12 ms (about a second each at coarse resolution): with 3 ms points the whole sweep
 # could finish between the first stored file and the Ctrl-C under a loaded machine.
 ARGS = ["--E0", "0.4,0.6", "--IOP", "12:20:3", "--resolution", "coarse", "--t-end", "12",
         "--workers", "2"]
-
-
-def airpuff(*args):
-    return [sys.executable, "-m", "api.cli", *args]
 
 
 def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
@@ -34,7 +35,7 @@ def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
                      options={"resolution": "coarse", "t_end": 12.0}).validate()
     files = [point_path(out / "points", point_key(p)) for p in spec.points()]
 
-    proc = subprocess.Popen(airpuff("sweep", *ARGS, "--out", str(out)), stdout=subprocess.PIPE,
+    proc = subprocess.Popen(airpuff_argv("sweep", *ARGS, "--out", str(out)), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 300
@@ -52,7 +53,7 @@ def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
     assert 1 <= len(stored) < len(files)  # interrupted in the middle
     mtimes = {f: f.stat().st_mtime_ns for f in stored}
 
-    done = subprocess.run(airpuff("sweep", *ARGS, "--out", str(out), "--json"),
+    done = subprocess.run(airpuff_argv("sweep", *ARGS, "--out", str(out), "--json"),
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout)  # exactly one JSON object on stdout
@@ -64,7 +65,7 @@ def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
         assert (ds["status"].values == "ok").all() and ds.sizes["IOP"] == 3
 
     # a third run has nothing to do: no cluster, and the summary table says so
-    again = subprocess.run(airpuff("sweep", *ARGS, "--out", str(out)), capture_output=True,
+    again = subprocess.run(airpuff_argv("sweep", *ARGS, "--out", str(out)), capture_output=True,
                            text=True, timeout=300)
     assert again.returncode == 0, again.stderr
     assert "6 points: 6 ok, 0 failed; 0 computed now, 6 already stored" in again.stdout
@@ -76,7 +77,7 @@ def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
 def test_demo_and_analysis_scripts_on_a_stored_sweep(tmp_path):
     """examples/analyze_sweep.py reads a sweep.nc with plain xarray and writes its figure."""
     out = tmp_path / "s"
-    run = subprocess.run(airpuff("sweep", "--E0", "0.4,0.6", "--IOP", "12,20", "--resolution",
+    run = subprocess.run(airpuff_argv("sweep", "--E0", "0.4,0.6", "--IOP", "12,20", "--resolution",
                                  "coarse", "--t-end", "3", "--out", str(out), "--json"),
                          capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
@@ -103,7 +104,7 @@ def test_sweep_with_the_shell_cornea_keys_and_records_it(tmp_path):
     args = ["--E0", "0.5", "--IOP", "16", "--resolution", "coarse", "--t-end", "0.5",
             "--workers", "1", "--out", str(out), "--json"]
     for cornea in ("shell", "membrane"):
-        run = subprocess.run(airpuff("sweep", *args, "--cornea", cornea), capture_output=True,
+        run = subprocess.run(airpuff_argv("sweep", *args, "--cornea", cornea), capture_output=True,
                              text=True, timeout=600)
         assert run.returncode == 0, run.stderr
         assert json.loads(run.stdout)["computed"] == 1  # the membrane point is a new point

@@ -36,17 +36,12 @@ SHORT = {"resolution": "coarse", "t_end": 3.0}  # ms
 
 
 @pytest.fixture(scope="module")
-def client(dask_client):
-    return dask_client
-
-
-@pytest.fixture(scope="module")
-def main_sweep(client, tmp_path_factory):
+def main_sweep(dask_client, tmp_path_factory):
     """A 2 x 2 sweep (E0 x IOP) run once; several tests read it."""
     out = tmp_path_factory.mktemp("sweep_main")
     spec = SweepSpec(E0=[0.4, 0.6], IOP=[12.0, 20.0], thickness=[0.5], pmax=[10.0],
                      options=dict(SHORT)).validate()
-    outcome = run_sweep(spec, out, client=client)
+    outcome = run_sweep(spec, out, client=dask_client)
     return spec, outcome, out
 
 
@@ -105,7 +100,7 @@ def test_combined_file_is_self_describing(main_sweep):
         assert SweepSpec.from_dict(__import__("json").loads(ds.attrs["sweep_json"])).to_dict() == spec.to_dict()
 
 
-def test_numba_compiles_nothing_in_warmed_workers(main_sweep, client):
+def test_numba_compiles_nothing_in_warmed_workers(main_sweep, dask_client):
     """The runner warmed the cache in this process before the fan-out: workers only load."""
     _, outcome, _ = main_sweep
     assert all(r["jit_compiled"] == 0 for r in outcome.records), \
@@ -119,15 +114,16 @@ def test_numba_compiles_nothing_in_warmed_workers(main_sweep, client):
         assert len(first) == 1 and first[0]["jit_loaded"] > 0  # loaded once, from the cache
         assert all(r["jit_loaded"] == 0 for r in later)  # and never again in that process
     # and from the workers' own Numba statistics: no cache miss anywhere
-    stats = client.run(jit_counts)
+    stats = dask_client.run(jit_counts)
     for addr, counts in stats.items():
         assert counts and sum(miss for _, miss in counts.values()) == 0, (addr, counts)
-    envs = client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), os.environ.get("NUMBA_CACHE_DIR")))
+    envs = dask_client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"),
+                                    os.environ.get("NUMBA_CACHE_DIR")))
     assert {e[0] for e in envs.values()} == {"1"}
     assert {e[1] for e in envs.values()} == {os.environ.get("NUMBA_CACHE_DIR")}
 
 
-def test_resume_computes_only_missing_points(main_sweep, client):
+def test_resume_computes_only_missing_points(main_sweep, dask_client):
     spec, first, out = main_sweep
     points_dir = out / "points"
     files = {point_key(p): point_path(points_dir, point_key(p)) for p in spec.points()}
@@ -143,7 +139,7 @@ def test_resume_computes_only_missing_points(main_sweep, client):
     point_path(points_dir, point_key(lost)).unlink()
     grown = SweepSpec(E0=spec.E0, IOP=spec.IOP + [16.0], thickness=spec.thickness, pmax=spec.pmax,
                       options=dict(spec.options)).validate()
-    resumed = run_sweep(grown, out, client=client)
+    resumed = run_sweep(grown, out, client=dask_client)
     assert resumed.computed == 3 and resumed.reused == 3 and resumed.failed == 0
     computed_keys = {r["key"] for r in resumed.records if r["computed"]}
     expected = {point_key(lost)} | {point_key(p) for p in grown.points() if p.IOP == 16.0}
@@ -161,14 +157,14 @@ def test_resume_computes_only_missing_points(main_sweep, client):
             assert _same(float(at[name]), float("nan") if a[name] is None else a[name])
 
 
-def test_failed_point_is_recorded_and_others_succeed(client, tmp_path):
+def test_failed_point_is_recorded_and_others_succeed(dask_client, tmp_path):
     # A 10 micrometre cornea (accepted range (0, 2] mm) cannot carry the IOP: the
     # Dirichlet-Neumann coupling diverges at once -- an honest solver failure.
     bad = RunParams(thickness=0.01, **SHORT)
     with pytest.raises(SimulationError) as direct:
         simulate(bad)
     spec = SweepSpec(E0=[0.5], IOP=[16.0], thickness=[0.01, 0.5], pmax=[10.0], options=dict(SHORT))
-    outcome = run_sweep(spec.validate(), tmp_path, client=client)
+    outcome = run_sweep(spec.validate(), tmp_path, client=dask_client)
     assert (outcome.computed, outcome.failed, outcome.ok) == (2, 1, 1)
 
     with xr.open_dataset(tmp_path / "sweep.nc") as ds:
@@ -185,24 +181,24 @@ def test_failed_point_is_recorded_and_others_succeed(client, tmp_path):
     assert not point_path(tmp_path / "points", key).exists()
 
     # a resume keeps the recorded failure; --retry-failed runs it again (and it fails again)
-    again = run_sweep(spec, tmp_path, client=client)
+    again = run_sweep(spec, tmp_path, client=dask_client)
     assert (again.computed, again.failed) == (0, 1)
-    retried = run_sweep(spec, tmp_path, client=client, retry_failed=True)
+    retried = run_sweep(spec, tmp_path, client=dask_client, retry_failed=True)
     assert (retried.computed, retried.failed) == (1, 1)
 
 
-def test_existing_scheduler_by_address(client, tmp_path):
+def test_existing_scheduler_by_address(dask_client, tmp_path):
     """--scheduler ADDRESS: the sweep joins a running cluster, and leaves it running."""
     spec = SweepSpec(E0=[0.42], IOP=[14.0, 18.0], options=dict(SHORT)).validate()
-    outcome = run_sweep(spec, tmp_path, scheduler=client.scheduler.address)
+    outcome = run_sweep(spec, tmp_path, scheduler=dask_client.scheduler.address)
     assert (outcome.computed, outcome.failed) == (2, 0)
     assert outcome.warnings == []  # its workers have one thread, NUMBA_NUM_THREADS=1, our cache
-    worker_pids = set(client.run(os.getpid).values())
+    worker_pids = set(dask_client.run(os.getpid).values())
     assert {r["pid"] for r in outcome.records} <= worker_pids
     assert len(worker_pids) == 2  # the cluster is still there
 
 
-def test_killed_worker_process_does_not_lose_points(client, tmp_path):
+def test_killed_worker_process_does_not_lose_points(dask_client, tmp_path):
     spec = SweepSpec(E0=[0.45, 0.55], IOP=[13.0, 17.0, 21.0], thickness=[0.5], pmax=[10.0],
                      options=dict(SHORT)).validate()
     points_dir = tmp_path / "points"
@@ -214,18 +210,18 @@ def test_killed_worker_process_does_not_lose_points(client, tmp_path):
         while time.monotonic() < deadline and not list(points_dir.glob("*.nc")):
             time.sleep(0.05)
         while time.monotonic() < deadline:
-            busy = [addr for addr, keys in client.processing().items() if keys]
+            busy = [addr for addr, keys in dask_client.processing().items() if keys]
             if busy:
-                pid = client.run(os.getpid, workers=[busy[0]])[busy[0]]
+                pid = dask_client.run(os.getpid, workers=[busy[0]])[busy[0]]
                 os.kill(pid, signal.SIGKILL)
                 killed.update(pid=pid, addr=busy[0], stored=len(list(points_dir.glob("*.nc"))))
                 return
             time.sleep(0.05)
 
-    pids_before = set(client.run(os.getpid).values())
+    pids_before = set(dask_client.run(os.getpid).values())
     killer = threading.Thread(target=kill_a_busy_worker, daemon=True)
     killer.start()
-    outcome = run_sweep(spec, tmp_path, client=client)
+    outcome = run_sweep(spec, tmp_path, client=dask_client)
     killer.join(timeout=10)
 
     assert killed, "no worker was killed during the sweep"
@@ -236,6 +232,6 @@ def test_killed_worker_process_does_not_lose_points(client, tmp_path):
         assert (ds["status"].values == "ok").all()
         assert np.isfinite(ds["DA"].values).all()
     # the Nanny replaced the killed process
-    client.wait_for_workers(2, timeout=60)
-    pids_after = set(client.run(os.getpid).values())
+    dask_client.wait_for_workers(2, timeout=60)
+    pids_after = set(dask_client.run(os.getpid).values())
     assert killed["pid"] not in pids_after and len(pids_after) == 2
