@@ -192,27 +192,32 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
     return X, Y, rel
 
 
-# m: apex curvature is fitted over the nodes with x <= this radius.  It must be small against the
-# width of the jet (exp(-a sin^2 phi) falls to 1/e at 1.5 mm, by 35 % already at 1 mm): the net
-# pressure, and with it the curvature of a membrane, varies across the jet, and a wide fit measures
-# an average that is not the apex (a 1 mm fit put P1, P2 0.1-0.5 mmHg off the apex balance).
-APEX_FIT_RADIUS = 0.3e-3
+# m: apex curvature is fitted over the nodes with reference x <= this radius, always with the same
+# even quartic, so that every resolution measures the same quantity (the apex curvature, to
+# O(R^4) of the fit radius R): with the earlier 0.3 mm and a quadratic below four nodes, coarse,
+# paper and fine resolution fitted three different forms (a two-point quadratic, a least-squares
+# quadratic, a quartic), and the change of form alone moved P2 by 0.17 mmHg at fine resolution
+# (docs/reproduction.md section 3).  0.6 mm holds three nodes at coarse resolution.  The radius
+# must stay small against the jet (exp(-a sin^2 phi) falls to 1/e at 1.5 mm): the net pressure,
+# and with it a membrane's curvature, varies across it (a 1 mm quadratic fit put P1, P2 0.1-0.5
+# mmHg off the apex balance).
+APEX_FIT_RADIUS = 0.6e-3
 
 
 def apex_fit_nodes(X_ref, fit_radius=APEX_FIT_RADIUS):
     """Number of cornea nodes (apex first) whose reference x lies within ``fit_radius``, at least
-    two.  Chosen once per run, so the fit follows the same material points throughout."""
-    return max(2, int(np.searchsorted(X_ref, fit_radius * (1 + 1e-9), side="right")))
+    three.  Chosen once per run, so the fit follows the same material points throughout."""
+    return max(3, int(np.searchsorted(X_ref, fit_radius * (1 + 1e-9), side="right")))
 
 
 def apex_curvature(X, Y, n_fit):
-    """Apical curvature [1/m], positive convex, from an even least-squares fit over the first
+    """Apical curvature [1/m], positive convex, from the even least-squares fit over the first
     ``n_fit`` nodes (those within APEX_FIT_RADIUS of the axis in the reference state):
 
-        y = c0 + c2 x^2 (+ c4 x^4 when n_fit >= 4),   kappa = -2 c2
+        y = c0 + c2 x^2 + c4 x^4,   kappa = -2 c2
 
-    A fixed physical radius, not a node count, so the measure converges to the curvature at the
-    apex as the resolution grows.  With two nodes it is 2 (y0 - y1) / x1^2, the curvature the
-    discrete apex balance 2 N kappa = q actually sees.
+    The same form over the same physical radius at every resolution, so the measure converges
+    with resolution (to the apex curvature within O(R^4)); the x^4 term keeps the variation of
+    the curvature across the fit out of kappa.
     """
     return even_fit_curvature(X, Y, n_fit)

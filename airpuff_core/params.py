@@ -135,8 +135,8 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("hyperviscosity", "1", 0.15, 0.0, 10.0,
            "strength gamma of the stabilising hyperviscosity gamma c h^5 H (0 switches it off; "
            "H from hyperviscosity_operator). Smallest stable strength at coarse / paper "
-           "resolution: brookshaw 0.025-0.05 / 0.05-0.075 (jet runs), consistent 0.094-0.103 / "
-           "0.0625-0.075, consistent_velocity 0.041-0.053 / at most 0.125 (docs/model.md "
+           "resolution: consistent_velocity 0.041-0.053 / 0.05-0.075, brookshaw 0.025-0.05 / "
+           "0.05-0.075 (jet runs), consistent 0.094-0.103 / 0.0625-0.075 (docs/model.md "
            "section 4)",
            low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
@@ -175,7 +175,7 @@ CHOICE_DEFAULTS = {
     "c_rule": "running_max",
     "jet_start": "as_written",
     "globe": None,
-    "hyperviscosity_operator": "brookshaw",
+    "hyperviscosity_operator": "consistent_velocity",
     "model": "paper",
     "cornea": None,
     "limbus": "clamped",
@@ -188,10 +188,10 @@ CHOICE_DESCRIPTIONS = {
     "jet_start": "as_written (the 0.19 % jet at t=0 arrives as a step) or equilibrium under p_a(0)",
     "globe": "rigid chamber walls (paper) or compliant: the walls recede with Friedenwald's "
              "pressure-volume law (ocular_rigidity)",
-    "hyperviscosity_operator": "operator H of the hyperviscosity: brookshaw (L^3, the paper "
-                               "reproduction), consistent (K* L K on density and velocity, zero "
-                               "on linear fields at walls too) or consistent_velocity (K* L K on "
-                               "velocity, L^3 on density)",
+    "hyperviscosity_operator": "operator H of the hyperviscosity: consistent_velocity (K* L K "
+                               "on velocity, zero on linear fields at walls and cornea too; L^3 "
+                               "on density), brookshaw (L^3 on both: first order in h at walls "
+                               "and cornea) or consistent (K* L K on density and velocity)",
     "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shell cornea, "
              "compliant globe, viscoelastic: ve_g 0.3, ve_tau 10 ms); explicit options override it",
     "cornea": "membrane (the paper's Fung membrane) or shell (the membrane with bending rigidity "

@@ -95,3 +95,26 @@ def test_discrete_rest_state_has_the_drawn_curvature(resolution):
     assert apex_curvature(model.X, model.Y, apex_fit_nodes(model.X)) == pytest.approx(1 / R, rel=1e-3)
     h = model.chamber.h.min()
     assert model.rest_shape_deviation < 0.01 * h
+
+
+@pytest.mark.parametrize("resolution", ["coarse", "paper", "fine"])
+def test_apex_fit_has_the_same_form_at_every_resolution(resolution):
+    """The applanation measure is one quantity at every resolution: an even quartic over the same
+    physical radius (>= 3 nodes), exact on any even quartic profile, and within O(R_fit^4) of the
+    apex curvature of a sphere."""
+    from airpuff_core.geometry import build_chamber
+    from airpuff_core.membrane import APEX_FIT_RADIUS
+    p = RunParams(resolution=resolution).si()
+    ch = build_chamber("sector", "isotropic", resolution, p.R_m, p.r_post_m, p.alpha0_rad)
+    X = p.R_m * np.sin(ch.phi_cornea)
+    n_fit = apex_fit_nodes(X)
+    assert n_fit >= 3
+    assert X[n_fit - 1] <= APEX_FIT_RADIUS * (1 + 1e-9) < X[n_fit]
+    # an even quartic dimple: y = y0 - kappa x^2 / 2 + c4 x^4 (kappa of either sign)
+    for kappa, c4 in ((142.0, 3e6), (-55.0, -8e6), (0.0, 5e7)):
+        Y = 6.9e-3 - 0.5 * kappa * X ** 2 + c4 * X ** 4
+        assert apex_curvature(X, Y, n_fit) == pytest.approx(kappa, abs=1e-9 * 142.0)
+    # a sphere of radius R: the x^6 term is the only error, (R_fit / R)^4 / 8 relative
+    R = 7e-3
+    Y = np.sqrt(R ** 2 - X ** 2)
+    assert apex_curvature(X, Y, n_fit) == pytest.approx(1 / R, rel=(0.6 / 7) ** 4 / 8 * 1.5)

@@ -124,13 +124,14 @@ def max_wave_speed(X, Y, L0, S0, Ebar, nu, k, rho_h):
 
 @njit(cache=True)
 def even_fit_curvature(X, Y, n_fit):
-    """Curvature kappa = -2 c2 [1/m] of the least-squares fit y = c0 + c2 x^2 (+ c4 x^4 when
-    n_fit >= 4) through the first ``n_fit`` nodes.
+    """Curvature kappa = -2 c2 [1/m] of the least-squares fit y = c0 + c2 x^2 + c4 x^4 through the
+    first ``n_fit`` nodes (n_fit >= 3; with three nodes the interpolating even quartic), or of
+    y = c0 + c2 x^2 through two.
 
     The normal equations are formed in xi = x / x_max, where the basis 1, xi^2, xi^4 is well
     conditioned on [0, 1], and solved by Gaussian elimination with partial pivoting.
     """
-    m = 3 if n_fit >= 4 else 2
+    m = 3 if n_fit >= 3 else 2
     x_max = 0.0
     for k in range(n_fit):
         x_max = max(x_max, abs(X[k]))
