@@ -414,6 +414,19 @@ def _pair_flow(rho, vx, vy, start, nbr, sign, count, coef, out_rho, out_vx, out_
 
 
 @njit(cache=True)
+def _even_pair_sum(f, start, nbr, count, coef, out):
+    """out_i = sum_j coef_ij (f_j - f_i) for a field even in x (an image carries f_j itself):
+    ``brookshaw_laplacian`` with parity 1, without its branch on the image flag (1.6 times as
+    fast in isolation, 4 % of an application of K^* L K / L^3, measured)."""
+    for i in range(f.shape[0]):
+        acc = 0.0
+        fi = f[i]
+        for k in range(start[i], start[i] + count[i]):
+            acc += coef[k] * (f[nbr[k]] - fi)
+        out[i] = acc
+
+
+@njit(cache=True)
 def _adjoint_flow(rho, vx, vy, start, nbr, mirrored, count, coef, area, with_density, out_rho,
                   out_vx, out_vy):
     """``pair_operator_adjoint`` of v_x (odd in x) and v_y (even), and with ``with_density`` of
@@ -466,12 +479,12 @@ def hyperviscous_flow_operator(rho, vx, vy, start, nbr, mirrored, sign, count, l
     _pair_flow(rho, vx, vy, start, nbr, sign, count, lap_c if consistent_velocity else lap_b,
                out_rho, out_vx, out_vy)
     if consistent_velocity and not consistent_density:
-        brookshaw_laplacian(rho, 1.0, start, nbr, mirrored, count, lap_b, out_rho)
+        _even_pair_sum(rho, start, nbr, count, lap_b, out_rho)
     _pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, b_r, b_x, b_y)
     if consistent_velocity:
         _adjoint_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_c, area,
                       consistent_density, out_rho, out_vx, out_vy)
         if not consistent_density:
-            brookshaw_laplacian(b_r, 1.0, start, nbr, mirrored, count, lap_b, out_rho)
+            _even_pair_sum(b_r, start, nbr, count, lap_b, out_rho)
     else:
         _pair_flow(b_r, b_x, b_y, start, nbr, sign, count, lap_b, out_rho, out_vx, out_vy)
