@@ -43,7 +43,7 @@ from .kernels.hyperviscosity import hyperviscous_flow_increments, legendre_plan
 from .kernels.nodes import AXIS, CORNEA, WALL
 from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from .params import RunParams
-from .shell import build_shell
+from .shell import shell_for_run
 from .viscoelastic import ViscoelasticHistory
 
 # forward-Euler step of the HV <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2,
@@ -99,9 +99,7 @@ class CoupledModel:
         ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
                                           si.R_m, si.r_post_m, si.alpha0_rad)
         # the cornea's mechanics (``substeps``, ``advance``, static equilibrium)
-        self.cornea_model = build_shell(ch.phi_cornea, si.R_m, si.p0_Pa, si.E0_Pa,
-                                        si.thickness_m, si.nu, si.fung_k, si.rho_cornea,
-                                        params.limbus, bending=params.cornea == "shell")
+        self.cornea_model = shell_for_run(params, ch.phi_cornea)
         self.jet = si.jet()
         n = ch.n
         self.kind = ch.kind
@@ -194,6 +192,7 @@ class CoupledModel:
             jet_pressures(0.0, ch.phi_cornea, self.jet, jet_at_rest)
             q -= jet_at_rest
         X, Y, self.equilibrium_residual = static_equilibrium(self.cornea_model, X0, Y0, q)
+        self.cornea_model.rest(X, Y)
         self.rest_shape_deviation = float(np.max(np.hypot(X - X0, Y - Y0)))
         self.X, self.Y = X, Y
         self.VX = np.zeros_like(X)
@@ -424,6 +423,7 @@ class CoupledModel:
         self._account_energy(dt)
         if self.viscoelastic is not None:
             self.viscoelastic.commit()
+        self.cornea_model.commit()
         cornea_n = (self.X, self.Y, self.VX, self.VY)
         self.X, self.Y, self.VX, self.VY = self._cornea_trial
         self._cornea_trial = cornea_n

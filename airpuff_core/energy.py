@@ -5,10 +5,10 @@ Cumulative from t = 0, with gauge pressures (kernels/energy.py):
     W_jet = dK + dE + D_tissue + D_fluid + W_globe - W_c + residual
 
 - W_jet: work of the air jet on the cornea (its lumped loads, trapezoidal rule over each step);
-- dK: change of kinetic energy, cornea plus fluid;
-- dE: change of stored energy: the cornea's strain energy (membrane and bending, of the
-  equilibrium law), the energy stored in its viscoelastic overstresses, and the fluid's
-  compression energy;
+- dK: change of kinetic energy, cornea (with its directors' rotation) plus fluid;
+- dE: change of stored energy: the cornea's strain energy (membrane, bending and transverse
+  shear, of the equilibrium law), the energy stored in its viscoelastic overstresses, and the
+  fluid's compression energy;
 - D_tissue: viscoelastic dissipation, the work of the overstresses q minus the energy they store,
   int q . dE - Psi, with Psi = sum_i G_inf / (2 g_i) q_i . C^-1 q_i and C the tangent of the
   equilibrium law at rest (exact for a law linear about the rest state, Simo and Hughes 1998,
@@ -38,7 +38,7 @@ class EnergyBudget:
     histories."""
 
     def __init__(self, cornea, viscoelastic, mass, rho0, p0, gamma):
-        self.cornea = cornea  # cornea mechanics: mass, energy(X, Y)
+        self.cornea = cornea  # cornea mechanics: kinetic_energy(VX, VY), energy(X, Y)
         self.viscoelastic = viscoelastic  # its ViscoelasticHistory, or None
         self.mass = mass
         self.rho0, self.p0, self.gamma = rho0, p0, gamma
@@ -53,8 +53,8 @@ class EnergyBudget:
 
     def _stored(self, X, Y, VX, VY, vx, vy, rho, c, history):
         cornea = self.cornea
-        membrane, bending = cornea.energy(X, Y)
-        kinetic = kinetic_energy(cornea.mass, VX, VY) + kinetic_energy(self.mass, vx, vy)
+        membrane, bending = cornea.energy(X, Y)  # bending includes the transverse shear
+        kinetic = cornea.kinetic_energy(VX, VY) + kinetic_energy(self.mass, vx, vy)
         elastic = membrane + bending + compression_energy(self.mass, rho, self.rho0, self.p0, c,
                                                           self.gamma)
         ve = self.viscoelastic

@@ -46,10 +46,14 @@ PRESTRETCH_MAX = 10.0
 
 # The choices each ``model`` preset makes; an option given explicitly overrides its preset.
 MODEL_PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {"cornea": "membrane", "globe": "rigid", "ve_g": 0.0, "ve_tau": 10.0},
-    # the shell, the compliant globe, and the viscoelasticity that Kling et al. (PLoS ONE 2014,
-    # e104904, table 3) fitted to human in-vivo air-puff deformation (docs/model.md section 10)
-    "clinical": {"cornea": "shell", "globe": "compliant", "ve_g": 0.3, "ve_tau": 10.0},
+    "paper": {"cornea": "membrane", "globe": "rigid", "ve_g": 0.0, "ve_tau": 10.0,
+              "transverse_shear_modulus": 0.0},
+    # the shell, the compliant globe, the viscoelasticity that Kling et al. (PLoS ONE 2014,
+    # e104904, table 3) fitted to human in-vivo air-puff deformation (docs/model.md section 10),
+    # and the transverse shear modulus measured on full-thickness human stroma, 9.48 +- 2.92 kPa
+    # (Petsche et al., IOVS 53 (2012) 873; docs/model.md section 13)
+    "clinical": {"cornea": "shell", "globe": "compliant", "ve_g": 0.3, "ve_tau": 10.0,
+                 "transverse_shear_modulus": 9.48},
 }
 # the numeric parameters a preset sets: None (not given) until ``RunParams.validate``
 PRESET_PARAMETERS = tuple(name for name in MODEL_PRESETS["clinical"]
@@ -149,6 +153,11 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("ve_tau", "ms", 10.0, 0.0, 1000.0,
            "relaxation time of the cornea's viscoelasticity; set by the model preset (10: Kling "
            "et al. 2014)"),
+        _p("transverse_shear_modulus", "kPa", 0.0, 0.0, 1.0e5,
+           "transverse (out-of-plane) shear modulus G_t of the shell cornea (cornea=shell): "
+           "G_t > 0 makes the shell shear-deformable (Reissner-Mindlin, shear stiffness "
+           "5/6 G_t h), 0 keeps it rigid in shear (Kirchhoff-Love); set by the model preset "
+           "(paper 0, clinical 9.48: human stroma, Petsche et al. 2012)", low_inc=True),
         _p("ocular_rigidity", "1/uL", 0.0126, 0.0, 0.1,
            "Friedenwald's ocular rigidity K of the compliant globe, dP/dV = ln(10) K P "
            "(globe=compliant; in-vivo mean 0.0126, Pallikaris et al. 2005)"),
@@ -192,10 +201,12 @@ CHOICE_DESCRIPTIONS = {
                                "on velocity, zero on linear fields at walls and cornea too; L^3 "
                                "on density), brookshaw (L^3 on both: first order in h at walls "
                                "and cornea) or consistent (K* L K on density and velocity)",
-    "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shell cornea, "
-             "compliant globe, viscoelastic: ve_g 0.3, ve_tau 10 ms); explicit options override it",
+    "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shear-deformable "
+             "shell cornea, G_t 9.48 kPa; compliant globe; viscoelastic: ve_g 0.3, ve_tau 10 ms); "
+             "explicit options override it",
     "cornea": "membrane (the paper's Fung membrane) or shell (the membrane with bending rigidity "
-              "D = E0 h^3/(12 (1 - nu^2)), Kirchhoff-Love, large rotations)",
+              "D = E0 h^3/(12 (1 - nu^2)), large rotations; Kirchhoff-Love, or shear-deformable "
+              "with transverse_shear_modulus > 0)",
     "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
               "rotate)",
 }
@@ -272,6 +283,7 @@ class SIParams:
     cfl: float  # acoustic CFL number
     ve_g: float  # relative modulus of the Prony term (0: elastic)
     ve_tau_s: float  # its relaxation time
+    transverse_shear_modulus_Pa: float  # G_t of the shell (0: rigid in shear, Kirchhoff-Love)
     ocular_rigidity_per_m3: float  # Friedenwald's K of the compliant globe
 
     def jet(self) -> np.ndarray:
@@ -309,6 +321,7 @@ class RunParams:
     cfl: float = PARAMETERS["cfl"].default
     ve_g: float | None = None  # from the model preset unless given
     ve_tau: float | None = None  # from the model preset unless given
+    transverse_shear_modulus: float | None = None  # from the model preset unless given
     ocular_rigidity: float = PARAMETERS["ocular_rigidity"].default
     resolution: str = CHOICE_DEFAULTS["resolution"]
     geometry: str = CHOICE_DEFAULTS["geometry"]
@@ -436,5 +449,6 @@ class RunParams:
             cfl=self.cfl,
             ve_g=self.ve_g,
             ve_tau_s=self.ve_tau * 1e-3,
+            transverse_shear_modulus_Pa=self.transverse_shear_modulus * 1e3,
             ocular_rigidity_per_m3=self.ocular_rigidity / UL_M3,
         )

@@ -5,10 +5,12 @@ recursion; this module holds their state through a run and measures their energy
 (``energy.py``).  E0 is the equilibrium modulus (docs/model.md, "Viscoelasticity"): the cornea
 starts fully relaxed, with no overstress, and its rest state is the elastic model's.
 
-State at t^n (rows: N1, N2 per segment in the first n - 1 entries; M_s, M_theta per node):
+State at t^n (rows: N1, N2 per segment in the first n - 1 entries; M_s, M_theta per node, or
+per segment for the shear-deformable shell, which adds its transverse shear force Q as row 4;
+``model.history_rows`` rows):
 
-- ``previous`` (4, n): the equilibrium-law resultants of the last evaluation;
-- ``overstress`` (terms, 4, n): q_i, zero at rest;
+- ``previous`` (rows, n): the equilibrium-law resultants of the last evaluation;
+- ``overstress`` (terms, rows, n): q_i, zero at rest;
 
 and a trial copy that the coupling iterations advance from it (``begin_trial``) and that
 becomes the state at t^{n+1} when the step is accepted (``commit``).
@@ -17,14 +19,13 @@ The stored energy of the overstresses, for a law linear about the rest state wit
 Psi = sum_i G_inf / (2 g_i) q_i . C^-1 q_i (the free energy of the Maxwell branches of the
 generalised Maxwell model that the Prony series describes; Simo and Hughes, Computational
 Inelasticity, 1998, section 10.3).  C is the tangent of the Fung membrane law at each segment's
-rest strains and the bending law's D [[1, nu], [nu, 1]].
+rest strains, the bending law's D [[1, nu], [nu, 1]] and the shear stiffness S = kappa G_t h.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .kernels.shell import shell_resultants, shell_strains, shell_work, work_rows
 from .kernels.viscoelastic import prony_step_factors
 
 
@@ -39,28 +40,17 @@ class ViscoelasticHistory:
         n = model.n
         self.decay = np.ones(self.g.shape[0])
         self.weight = np.zeros(self.g.shape[0])
-        self._work = shell_work(n)
-        self._work1 = shell_work(n)
+        self._work = model.history_work()
+        self._work1 = model.history_work()
         # the relaxed rest state: previous = its equilibrium resultants, no overstress
-        self.previous = np.zeros((4, n))
-        self.overstress = np.zeros((self.g.shape[0], 4, n))
-        E1, E2, _, N1, N2, _, Ks, Kt, Ms, Mt = self._strains_and_resultants(X_rest, Y_rest)
-        self.previous[0, :n - 1] = N1
-        self.previous[1, :n - 1] = N2
-        self.previous[2] = Ms
-        self.previous[3] = Mt
+        rows = model.history_rows
+        self.previous = np.zeros((rows, n))
+        self.overstress = np.zeros((self.g.shape[0], rows, n))
+        (E1, E2, *_), resultants = model.history_strains(X_rest, Y_rest, self._work)
+        for row, values in enumerate(resultants):
+            self.previous[row, :values.shape[0]] = values
         self._membrane_compliance = self._rest_compliance(E1, E2)
         self._trial = (np.empty_like(self.previous), np.empty_like(self.overstress))
-
-    def _strains_and_resultants(self, X, Y, work=None):
-        m = self.model
-        work = self._work if work is None else work
-        rows = work_rows(work, m.n)
-        E1, E2, psi, N1, N2, _, Ks, Kt, Ms, Mt = rows
-        shell_strains(X, Y, m.L0, m.S0, m.psi_ref, m.dual_length, m.x_ref, m.limbus, m.D, E1, E2,
-                      psi, Ks, Kt)
-        shell_resultants(E1, E2, Ks, Kt, m.Ebar, m.nu, m.k, m.D, N1, N2, Ms, Mt)
-        return rows
 
     def _rest_compliance(self, E1, E2):
         """(c11, c12, c22) per segment: the inverse of the Fung law's tangent d(N1, N2)/d(E1, E2)
@@ -102,29 +92,40 @@ class ViscoelasticHistory:
         m = self.model
         n = m.n
         c11, c12, c22 = self._membrane_compliance
+        area = m.bending_area
+        cells = area.shape[0]
         energy = 0.0
         for i in range(self.g.shape[0]):
             qN1, qN2 = overstress[i, 0, :n - 1], overstress[i, 1, :n - 1]
             membrane = np.sum(m.A0 * (c11 * qN1 * qN1 + 2.0 * c12 * qN1 * qN2 + c22 * qN2 * qN2))
             bending = 0.0
             if m.D != 0.0:
-                qMs, qMt = overstress[i, 2], overstress[i, 3]
+                qMs, qMt = overstress[i, 2, :cells], overstress[i, 3, :cells]
                 # C^-1 of D [[1, nu], [nu, 1]]
                 inv = 1.0 / (m.D * (1.0 - m.nu * m.nu))
-                bending = np.sum(m.node_area * inv * (qMs * qMs - 2.0 * m.nu * qMs * qMt
-                                                      + qMt * qMt))
+                bending = np.sum(area * inv * (qMs * qMs - 2.0 * m.nu * qMs * qMt + qMt * qMt))
+            if m.history_rows > 4:
+                qQ = overstress[i, 4, :n - 1]
+                bending += np.sum(m.A0 * qQ * qQ) / m.S
             energy += self.g_inf / (2.0 * self.g[i]) * (membrane + bending)
         return float(energy)
 
     def overstress_work(self, X0, Y0, X1, Y1, overstress0, overstress1):
         """int q . dE over one step [J], trapezoidal: the mean total overstress of the two ends
-        times the change of the strains (membrane per segment on A0, bending per node on A_i)."""
+        times the change of the strains (membrane per segment on A0, bending on the moments'
+        areas, transverse shear per segment on A0).  (X0, Y0) is the state at the start of the
+        step, (X1, Y1) the trial state at its end (with the cornea's trial directors)."""
         m = self.model
         n = m.n
-        E1a, E2a, _, _, _, _, Ksa, Kta, _, _ = self._strains_and_resultants(X0, Y0)
-        E1b, E2b, _, _, _, _, Ksb, Ktb, _, _ = self._strains_and_resultants(X1, Y1, self._work1)
+        (E1a, E2a, *bend_a), _ = m.history_strains(X0, Y0, self._work)
+        (E1b, E2b, *bend_b), _ = m.history_strains(X1, Y1, self._work1, trial=True)
         q = 0.5 * (overstress0.sum(axis=0) + overstress1.sum(axis=0))
         work = np.sum(m.A0 * (q[0, :n - 1] * (E1b - E1a) + q[1, :n - 1] * (E2b - E2a)))
         if m.D != 0.0:
-            work += np.sum(m.node_area * (q[2] * (Ksb - Ksa) + q[3] * (Ktb - Kta)))
+            area = m.bending_area
+            cells = area.shape[0]
+            work += np.sum(area * (q[2, :cells] * (bend_b[0] - bend_a[0])
+                                   + q[3, :cells] * (bend_b[1] - bend_a[1])))
+        if m.history_rows > 4:
+            work += np.sum(m.A0 * q[4, :n - 1] * (bend_b[2] - bend_a[2]))
         return float(work)

@@ -7,7 +7,8 @@ nodes) carries the IOP p0 inside and the jet's shape exp(-a sin^2 phi) outside, 
 amplitude p_a.  The exact discrete equilibrium is found by Newton's method (continuation in p_a),
 and p_a is bisected until the fitted apex curvature is zero.  For a membrane Imbert-Fick gives
 p_a = p0; what the shell needs beyond p0 is its static bending stiffness, the part of
-IOPg - IOP that owes nothing to the fluid or to inertia (docs/validation.md).
+IOPg - IOP that owes nothing to the fluid or to inertia (docs/validation.md), for the
+Kirchhoff-Love shell (rigid in transverse shear) and the shear-deformable one (``--shear``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from airpuff_core import RunParams
 from airpuff_core.geometry import build_chamber
 from airpuff_core.membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from airpuff_core.params import MMHG_PA
-from airpuff_core.shell import build_shell
+from airpuff_core.shell import shell_for_run
 
 STEP_MMHG = 5.0  # continuation step of the jet amplitude
 
@@ -31,8 +32,7 @@ def applanating_amplitude(params: RunParams, bisections: int = 30) -> tuple[floa
     ch = build_chamber(params.geometry, params.layout, params.resolution, si.R_m, si.r_post_m,
                        si.alpha0_rad)
     phi = ch.phi_cornea
-    model = build_shell(phi, si.R_m, si.p0_Pa, si.E0_Pa, si.thickness_m, si.nu, si.fung_k,
-                        si.rho_cornea, params.limbus, bending=params.cornea == "shell")
+    model = shell_for_run(params, phi)
     X0, Y0 = si.R_m * np.sin(phi), si.R_m * np.cos(phi)
     X, Y, _ = static_equilibrium(model, X0, Y0, np.full(phi.shape, si.p0_Pa))
     apex_rest = Y[0]
@@ -64,20 +64,29 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--resolution", default="coarse", choices=("coarse", "paper", "fine"))
     ap.add_argument("--thickness", default="0.45,0.54,0.65", help="comma list [mm]")
+    ap.add_argument("--shear", default="9.48", help="transverse shear modulus G_t [kPa] of the "
+                    "shear-deformable shell (default: the clinical preset's)")
     args = ap.parse_args(argv)
-    print(f"static applanation at IOP 16 mmHg, E0 0.5 MPa, {args.resolution} cornea nodes")
-    print("| CCT [mm] | membrane: jet [mmHg] | shell: jet [mmHg] | shell - membrane | "
-          "shell apex depth [mm] |\n|---|---|---|---|---|")
+    G_t = float(args.shear)
+    print(f"static applanation at IOP 16 mmHg, E0 0.5 MPa, {args.resolution} cornea nodes; "
+          f"shear-deformable shell with G_t = {G_t:g} kPa")
+    print("| CCT [mm] | membrane: jet [mmHg] | Kirchhoff shell: jet [mmHg] | - membrane | "
+          "Mindlin shell: jet [mmHg] | - membrane | Mindlin apex depth [mm] |\n"
+          "|---|---|---|---|---|---|---|")
     rows = []
     for h in (float(v) for v in args.thickness.split(",")):
         base = RunParams(resolution=args.resolution, thickness=h)
         membrane, _ = applanating_amplitude(base.replace(cornea="membrane"))
-        shell, depth = applanating_amplitude(base.replace(cornea="shell"))
-        rows.append((h, shell))
-        print(f"| {h:g} | {membrane:.2f} | {shell:.2f} | {shell - membrane:+.2f} | {depth:.3f} |")
+        kirchhoff, _ = applanating_amplitude(base.replace(cornea="shell"))
+        mindlin, depth = applanating_amplitude(base.replace(cornea="shell",
+                                                            transverse_shear_modulus=G_t))
+        rows.append((h, kirchhoff, mindlin))
+        print(f"| {h:g} | {membrane:.2f} | {kirchhoff:.2f} | {kirchhoff - membrane:+.2f} | "
+              f"{mindlin:.2f} | {mindlin - membrane:+.2f} | {depth:.3f} |")
     if len(rows) > 1:
-        h, p = np.array(rows).T
-        print(f"shell: {np.polyfit(h, p, 1)[0] * 0.1:+.2f} mmHg per 100 um (least squares)")
+        h, pk, pm = np.array(rows).T
+        print(f"slopes (least squares): Kirchhoff {np.polyfit(h, pk, 1)[0] * 0.1:+.2f}, "
+              f"Mindlin {np.polyfit(h, pm, 1)[0] * 0.1:+.2f} mmHg per 100 um")
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
     python benchmarks/validation.py --out validation                       # coarse, both corneas
     python benchmarks/validation.py --out validation_paper --resolution paper --cornea shell
     python benchmarks/validation.py --out validation_clinical --model clinical
+    python benchmarks/validation.py --out validation_clinical --model clinical_kirchhoff --model clinical
     python benchmarks/validation.py --out validation --reuse               # read back finished runs
 
 Three one-parameter studies about the normal eye (E0 0.5 MPa, IOP 16 mmHg, CCT 0.54 mm, the
@@ -15,7 +16,11 @@ paper's geometry and jet), for each cornea model asked for:
 and, with ``--model clinical`` (the clinical preset: shell, viscoelasticity, compliant globe), the
 viscoelastic parameters too:
 
-- ve_g 0.15-0.45 and ve_tau 3-30 ms about the preset's 0.3 and 10 ms.
+- ve_g 0.15-0.45 and ve_tau 3-30 ms about the preset's 0.3 and 10 ms;
+- the transverse shear modulus 6.56-12.4 kPa (the published mean 9.48 +- one SD).
+
+``--model clinical_kirchhoff`` is the clinical preset with the Kirchhoff-Love shell (rigid in
+transverse shear), for comparison.
 
 Slopes (of IOPg and of CH) are least-squares lines through the points.  Each run is one ``simulate()`` call in this
 process, kept as ``<out>/<name>.nc`` (``--reuse`` reads back a run made with the same parameters).
@@ -45,15 +50,23 @@ STUDIES = {
     "E0": (0.3, 0.5, 0.7, 0.9),
     "IOP": (10.0, 13.0, 16.0, 19.0, 22.0, 25.0),
 }
-# studies of the viscoelastic parameters, run for the clinical model only
+# studies of the viscoelastic parameters, run for the clinical models only
 VISCOELASTIC_STUDIES = {"ve_g": (0.15, 0.3, 0.45), "ve_tau": (3.0, 10.0, 30.0)}
+# the transverse shear modulus of the clinical preset's shell: Petsche et al.'s (IOVS 53 (2012)
+# 873) full-thickness mean 9.48 kPa and one standard deviation (2.92 kPa) either side
+SHEAR_STUDY = {"transverse_shear_modulus": (6.56, 9.48, 12.4)}
+# the model presets this script studies (--model): the clinical preset, and the same with the
+# Kirchhoff-Love shell (rigid in transverse shear, the clinical preset before the shear)
+PRESETS = {"clinical": {"model": "clinical"},
+           "clinical_kirchhoff": {"model": "clinical", "transverse_shear_modulus": 0.0}}
 # the slope is given per this change of the swept parameter, in its user unit
 SLOPE_PER = {"thickness": (0.1, "mmHg per 100 um"), "E0": (0.1, "mmHg per 0.1 MPa"),
              "IOP": (1.0, "mmHg per mmHg"), "ve_g": (0.1, "mmHg per 0.1"),
-             "ve_tau": (10.0, "mmHg per 10 ms")}
+             "ve_tau": (10.0, "mmHg per 10 ms"),
+             "transverse_shear_modulus": (1.0, "mmHg per kPa")}
 CLINICAL = {"thickness": "+2.8 (Goldmann, population studies); more for air-puff tonometers",
             "E0": "rises with stiffness (finite-element studies of Goldmann tonometry)",
-            "IOP": "0.8-1.2 (aim)", "ve_g": "-", "ve_tau": "-"}
+            "IOP": "0.8-1.2 (aim)", "ve_g": "-", "ve_tau": "-", "transverse_shear_modulus": "-"}
 METRICS = ("IOPg", "P1", "P2", "CH", "CRF", "DA", "t_A1", "t_A2")
 
 
@@ -67,15 +80,20 @@ def slope(x, y):
 
 
 def studies_of(model: str) -> dict:
-    """The one-parameter studies of a model: the viscoelastic ones for the clinical preset."""
-    return {**STUDIES, **(VISCOELASTIC_STUDIES if model == "clinical" else {})}
+    """The one-parameter studies of a model: the viscoelastic ones for the clinical presets, the
+    transverse shear modulus for the clinical preset's shear-deformable shell."""
+    return {**STUDIES, **(VISCOELASTIC_STUDIES if model in PRESETS else {}),
+            **(SHEAR_STUDY if model == "clinical" else {})}
 
 
-def run_studies(out: Path, resolution: str, models, reuse: bool) -> list[dict]:
-    """``models``: {label: RunParams options}, e.g. {"shell": {"cornea": "shell"}}."""
+def run_studies(out: Path, resolution: str, models, reuse: bool, only=None) -> list[dict]:
+    """``models``: {label: RunParams options}, e.g. {"shell": {"cornea": "shell"}}; ``only``: the
+    names of the studies to run (default all of each model's)."""
     rows = []
     for model, options in models.items():
         for name, values in studies_of(model).items():
+            if only and name not in only:
+                continue
             for v in values:
                 point = {**NORMAL_EYE, name: v}
                 params = RunParams(resolution=resolution, **options, **point)
@@ -85,10 +103,12 @@ def run_studies(out: Path, resolution: str, models, reuse: bool) -> list[dict]:
     return rows
 
 
-def summary(rows: list[dict], corneas) -> list[dict]:
+def summary(rows: list[dict], corneas, only=None) -> list[dict]:
     lines = []
     for cornea in corneas:
         for name in studies_of(cornea):
+            if only and name not in only:
+                continue
             pts = [r for r in rows if r["cornea"] == cornea and r["study"] == name
                    and r["status"] == "ok"]
             per, unit = SLOPE_PER[name]
@@ -146,7 +166,7 @@ def figure(rows: list[dict], corneas, path: Path, resolution: str) -> None:
     labels = {"thickness": "CCT [mm]", "E0": "E0 [MPa]", "IOP": "true IOP [mmHg]"}
     for row_axes, metric in zip(axes, ("IOPg", "CH")):
         for ax, name in zip(row_axes, STUDIES):
-            for cornea, marker in zip(corneas, "os^"):
+            for cornea, marker in zip(corneas, "os^Dv"):
                 pts = [r for r in rows if r["cornea"] == cornea and r["study"] == name
                        and r["status"] == "ok"]
                 ax.plot([r["value"] for r in pts], [r[metric] for r in pts], marker=marker,
@@ -178,19 +198,23 @@ def main(argv=None):
     ap.add_argument("--resolution", default="coarse", choices=("coarse", "paper", "fine"))
     ap.add_argument("--cornea", action="append", choices=("membrane", "shell"),
                     help="cornea model(s) to study (default: both)")
-    ap.add_argument("--model", action="append", choices=("clinical",),
-                    help="also (or, without --cornea, only) study this model preset")
+    ap.add_argument("--model", action="append", choices=tuple(PRESETS),
+                    help="also (or, without --cornea, only) study this model preset "
+                         "(clinical_kirchhoff: the clinical preset with the Kirchhoff-Love shell)")
     ap.add_argument("--reuse", action="store_true", help="read back runs already in --out")
+    ap.add_argument("--study", action="append",
+                    choices=(*STUDIES, *VISCOELASTIC_STUDIES, *SHEAR_STUDY),
+                    help="run only this study (repeatable; default all)")
     args = ap.parse_args(argv)
     corneas = args.cornea or ([] if args.model else ["membrane", "shell"])
     models = {**{c: {"cornea": c} for c in corneas},
-              **{m: {"model": m} for m in (args.model or [])}}
+              **{m: PRESETS[m] for m in (args.model or [])}}
     corneas = list(models)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = run_studies(out, args.resolution, models, args.reuse)
+    rows = run_studies(out, args.resolution, models, args.reuse, args.study)
     write_tables(rows, out, "validation")
-    lines = summary(rows, corneas)
+    lines = summary(rows, corneas, args.study)
     figure(rows, corneas, out / "validation.png", args.resolution)
     print(markdown(lines, rows, args.resolution))
 

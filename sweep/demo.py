@@ -3,8 +3,8 @@
     python -m sweep.demo --out demo_out
 
 The same 2 E0 x 3 IOP grid at coarse resolution, once with the paper's model (membrane cornea,
-rigid globe, elastic) and once with the clinical preset (shell cornea, compliant globe,
-viscoelastic; docs/model.md), on one local Dask cluster of 2 workers.  Writes
+rigid globe, elastic) and once with the clinical preset (shear-deformable shell cornea, compliant
+globe, viscoelastic; docs/model.md), on one local Dask cluster of 2 workers.  Writes
 ``OUT/paper/sweep.nc`` and ``OUT/clinical/sweep.nc`` (layout: ``sweep.combine``; the per-point files
 share ``OUT/points``) and ``OUT/metrics_vs_IOP.png`` (IOPg, CH and DA against IOP, one line per E0,
 one row per model) and prints where they are.  Running it again reuses the stored points.

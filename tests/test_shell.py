@@ -19,15 +19,21 @@ P0 = 16 * 133.322  # Pa
 R = 7e-3  # m
 
 
-def reference_energy(m, X, Y):
-    """Pi = sum_s A0_s W_membrane + sum_i A_i W_bending, written out from the definitions
-    (numpy, not the kernels): Fung membrane, Reissner bending strains, linear bending law."""
+def reference_membrane(m, X, Y):
+    """(W_membrane per segment [J/m^2], segment angles psi [rad]) written out from the
+    definitions (numpy, not the kernels): Green-Lagrange strains, the Fung law."""
     dx, dy = np.diff(X), np.diff(Y)
     E1 = 0.5 * ((dx ** 2 + dy ** 2) / m.L0 ** 2 - 1)
     E2 = 0.5 * (((X[:-1] + X[1:]) / m.S0) ** 2 - 1)
     quad = E1 ** 2 + E2 ** 2 + 2 * m.nu * E1 * E2
     W_m = 0.5 * m.Ebar * quad if m.k == 0 else 0.5 * m.Ebar / m.k * np.expm1(m.k * quad)
-    psi = np.arctan2(-dy, dx)
+    return W_m, np.arctan2(-dy, dx)
+
+
+def reference_energy(m, X, Y):
+    """Pi = sum_s A0_s W_membrane + sum_i A_i W_bending, written out from the definitions
+    (numpy, not the kernels): Fung membrane, Reissner bending strains, linear bending law."""
+    W_m, psi = reference_membrane(m, X, Y)
     Xr = m.x_ref
     dpsi, dref = np.diff(psi), np.diff(m.psi_ref)
     l = m.dual_length

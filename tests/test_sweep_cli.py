@@ -35,8 +35,12 @@ def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
                      options={"resolution": "coarse", "t_end": 12.0}).validate()
     files = [point_path(out / "points", point_key(p)) for p in spec.points()]
 
+    # A shell starts background jobs with SIGINT ignored, and a child inherits that; Python then
+    # installs no KeyboardInterrupt handler. Reset it so the sweep gets SIGINT as a terminal's
+    # foreground process does, however pytest itself was started.
     proc = subprocess.Popen(airpuff_argv("sweep", *ARGS, "--out", str(out)), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 300
         while time.monotonic() < deadline and not any(f.exists() for f in files):

@@ -115,7 +115,14 @@ def add_bending_forces(X, Y, psi, psi_ref, dual_length, x_ref, node_area, limbus
         G[i - 1] += gt
     if limbus == LIMBUS_CLAMPED:
         G[n - 2] -= node_area[n - 1] * Ms[n - 1] / dual_length[n - 1]
-    for s in range(n - 1):
+    add_angle_forces(X, Y, G, Fx, Fy)
+
+
+@njit(cache=True)
+def add_angle_forces(X, Y, G, Fx, Fy):
+    """Add -dPi/dX [N] to Fx, Fy for G_s = dPi/dpsi_s given per segment, through
+    dpsi_s/d(dx, dy) = (dy, -dx) / L^2 (psi_s = atan2(-dy, dx))."""
+    for s in range(X.shape[0] - 1):
         dx = X[s + 1] - X[s]
         dy = Y[s + 1] - Y[s]
         g = G[s] / (dx * dx + dy * dy)
