@@ -38,15 +38,16 @@ from .kernels.energy import jet_pressures
 from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_divergence, drift,
                             impose_cornea, interface_pressure_change, max_density_deviation,
                             max_speed, tait_pressure, tait_pressure_at)
-from .kernels.membrane import air_jet, cornea_polygon_volume
-from .kernels.mfpm import hyperviscous_flow_increments
+from .kernels.membrane import cornea_polygon_volume
+from .kernels.hyperviscosity import hyperviscous_flow_increments, legendre_plan
 from .kernels.nodes import AXIS, CORNEA, WALL
 from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from .params import RunParams
 from .shell import shell_for_run
 from .viscoelastic import ViscoelasticHistory
 
-# dt <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2, unstable at 2.0 (measured)
+# forward-Euler step of the HV <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2,
+# unstable at 2.0 (measured).  The Runge-Kutta-Legendre stages keep the same margin.
 HV_SAFETY = 1.4
 HV_POWER_ITERATIONS = 2  # power iterations per refresh, warm-started (the mode changes slowly)
 HV_REFRESH_STEPS = 4  # steps between refreshes (nodes move < 1 % of a spacing in between)
@@ -154,13 +155,15 @@ class CoupledModel:
                                                "p_half", "vx_new", "vy_new", "x_new", "y_new",
                                                "rho_new", "div_new", "x_half", "y_half")}
         self._grad_p = np.zeros((1, n, 2))  # (p_x, p_y) at t^{n+1/2}
-        self._hv_work = np.empty((9, n))
+        self._hv_work = np.empty((15, n))
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self._dv_new = np.zeros((2, n, 5))
-        # jet on the cornea at t^n and t^{n+1}, fluid pressure [Pa]: work arrays of the budget
+        # jet on the cornea at t^n and t^{n+1}, fluid pressure [Pa]: work arrays of the budget;
+        # the jet at t^{n+1} of one step is the next step's at t^n (at time _jet_time [s])
         self._energy_work = (np.empty(ch.phi_cornea.shape[0]), np.empty(ch.phi_cornea.shape[0]),
                              np.empty(n))
+        self._jet_time = math.nan
         N = self.X.shape[0]
         self._cornea_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_trial = (np.empty(N), np.empty(N))  # interface pressure estimates [Pa]
@@ -215,6 +218,7 @@ class CoupledModel:
                                   si.ocular_rigidity_per_m3, si.p0_Pa, si.rho_fluid, self.mass,
                                   si.tait_gamma)
         self.wall.volume_offset = self.density_volume() - self.chamber_volume()
+        self._wall_pressure = np.empty(self.wall.nodes.shape[0])  # work array [Pa]
 
     # -- time step --------------------------------------------------------------------------
     def time_step(self):
@@ -230,6 +234,12 @@ class CoupledModel:
         self.dt_hyperviscous = self._hyperviscous_limit()
         self.dt_limits = {"acoustic": dt_acoustic, "viscous": dt_viscous}
         return min(dt_acoustic, dt_viscous)
+
+    def max_step(self):
+        """An upper bound [s] of the next step's dt: the acoustic limit at the smallest sound
+        speed any rule gives, c >= c0 (infinite for c0 = 0)."""
+        c0 = self.si.c0
+        return self.si.cfl * self.h_min / c0 if c0 > 0 else math.inf
 
     def _hyperviscous_limit(self):
         """Largest stable forward-Euler step [s] of the hyperviscosity gamma c h^5 H."""
@@ -307,7 +317,9 @@ class CoupledModel:
 
     def _hyperviscous_rates(self, dt):
         """HV(rho), HV(v_x), HV(v_y) at t^n [per s] into the work arrays.  HV is stiff: it is
-        sub-cycled within the step, and its increments, divided by dt, enter the predictor as
+        integrated over the step by Runge-Kutta-Legendre super-steps (``kernels/hyperviscosity.py``:
+        K super-steps of s stages cover K (s^2 + s)/2 forward-Euler steps of
+        ``dt_hyperviscous``), and its increments, divided by dt, enter the predictor as
         rates."""
         w = self._work
         gamma = self.si.hyperviscosity
@@ -317,11 +329,12 @@ class CoupledModel:
             w["hv_vy"][:] = 0.0
             return
         scale = gamma * self.c * self.hv_scale_unit
-        n_hv = max(1, int(math.ceil(dt / self.dt_hyperviscous)))
-        self.last_hv_substeps = n_hv
+        supersteps, stages = legendre_plan(dt / self.dt_hyperviscous)
+        self.last_hv_substeps = supersteps * stages  # applications of the operator
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
-                                     *self.ops_n.hyperviscosity_args(), self.hv_consistent_density,
-                                     self.hv_consistent_velocity, scale, dt, n_hv,
+                                     *self.ops_n.hyperviscous_flow_args(),
+                                     self.hv_consistent_density, self.hv_consistent_velocity,
+                                     scale, dt, stages, supersteps,
                                      self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])
         w["hv_rho"] /= dt
         w["hv_vx"] /= dt
@@ -450,9 +463,14 @@ class CoupledModel:
         w = self._work
         X, Y = self._cornea_trial[0], self._cornea_trial[1]
         phi = self.chamber.phi_cornea
-        jet_n, jet_new, p_n = self._energy_work
-        jet_pressures(self.t, phi, self.jet, jet_n)
+        jet_new, jet_n, p_n = self._energy_work  # last step's jet at t^{n+1} is in [0]
+        if self._jet_time != self.t:
+            jet_pressures(self.t, phi, self.jet, jet_n)
+        else:
+            jet_n, jet_new = jet_new, jet_n
         jet_pressures(self.t + dt, phi, self.jet, jet_new)
+        self._energy_work = (jet_new, jet_n, p_n)
+        self._jet_time = self.t + dt
         tait_pressure(self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma, p_n)
         globe = 0.0 if self.wall is None else self._globe_work()
         ve = self.viscoelastic
@@ -467,7 +485,7 @@ class CoupledModel:
         """Work [J] of the fluid on the compliant walls over the step just coupled: the mean wall
         pressure of its two ends times the volume the walls gave way by."""
         si, wall = self.si, self.wall
-        p_wall = np.empty(wall.nodes.shape[0])
+        p_wall = self._wall_pressure
         tait_pressure_at(wall.nodes, self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma,
                          p_wall)
         p_start = wall.mean_pressure(p_wall)
@@ -493,10 +511,6 @@ class CoupledModel:
     def apex_displacement(self):
         """Inward displacement of the apex since t = 0 [m]."""
         return self.apex_y0 - self.Y[0]
-
-    def jet_pressure_apex(self):
-        """Air-jet pressure at the apex now, eq. (11) [Pa]."""
-        return air_jet(self.t, 0.0, *self.jet)
 
     def wall_volume_change(self):
         """Volume [m^3] by which the compliant walls have given way (0 for a rigid globe)."""

@@ -14,7 +14,8 @@ import numpy as np
 
 from .errors import SimulationError
 from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
-from .kernels.neighbours import AXIS_EPS, build_neighbours, max_squared_move
+from .kernels.neighbours import build_neighbours, max_squared_move
+from .kernels.nodes import axis_halved_area
 
 KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
 MAX_NEIGHBOURS = 128
@@ -105,6 +106,7 @@ class Operators:
         self.count = np.zeros(n, np.int64)
         self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.uint32)
         self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
+        self.sign = np.zeros(n * MAX_NEIGHBOURS)  # -1.0 for a mirror image, else 1.0
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
         self.consistent = consistent
         self.lap_c = np.zeros(n * MAX_NEIGHBOURS if consistent else 0)
@@ -148,11 +150,11 @@ class Operators:
             self.start[:] = t.start
         status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
                                   t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
-                                  self.count, self.nbr, self.mirrored, self.lap_b, self.lap_c,
-                                  laplacian, laplacian and self.consistent)
+                                  self.count, self.nbr, self.mirrored, self.sign, self.lap_b,
+                                  self.lap_c, laplacian, laplacian and self.consistent)
         if laplacian:
             self.has_laplacian = True
-            np.multiply(self.area, np.where(x < AXIS_EPS, 0.5, 1.0), out=self.adjoint_weight)
+            axis_halved_area(x, self.area, self.adjoint_weight)
         if status:
             i = status - 1
             raise SimulationError(
@@ -177,6 +179,12 @@ class Operators:
     def hyperviscosity_args(self):
         """(start, nbr, mirrored, count, lap_b, lap_c, weight) for the hyperviscosity kernels."""
         return (*self.laplacian_args(), self.lap_c, self.adjoint_weight)
+
+    def hyperviscous_flow_args(self):
+        """(start, nbr, mirrored, sign, count, lap_b, lap_c, weight) for
+        ``kernels.mfpm.hyperviscous_flow_operator``."""
+        start, nbr, mirrored, count, lap_b = self.laplacian_args()
+        return start, nbr, mirrored, self.sign, count, lap_b, self.lap_c, self.adjoint_weight
 
     def hyperviscous(self, f, parity, scale, work1, work2, out, consistent=False):
         """out = scale * H f, the hyperviscous term with H = L^3, or K^* L K if ``consistent``

@@ -1,7 +1,8 @@
-"""`make bench`: every benchmark figure of docs/performance.md, printed (about 11 minutes).
+"""`make bench`: every benchmark figure of docs/performance.md, printed (about 14 minutes).
 
     python benchmarks/run_all.py            # all
-    python benchmarks/run_all.py --quick    # skip the paper-resolution runs and the sweep
+    python benchmarks/run_all.py --quick    # skip the paper-resolution runs, the sweep and the
+                                            # cost against resolution (a fine run)
 
 Timings on this machine vary by 20-30 % from minute to minute, so the runs are repeated and the
 fastest and median are printed.
@@ -13,7 +14,8 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from benchmarks import bench_compile, bench_mfpm, bench_shell, bench_sweep, run_default  # noqa: E402
+from benchmarks import (bench_compile, bench_mfpm, bench_shell, bench_sweep,  # noqa: E402
+                        run_default, scaling)
 
 
 def main(argv):
@@ -26,6 +28,7 @@ def main(argv):
         run_default.main("paper", repeat=3)
         bench_shell.main("paper", repeat=3)
         bench_sweep.main(["--repeat", "2"])
+        scaling.main([])
 
 
 if __name__ == "__main__":

@@ -183,14 +183,16 @@ def test_rest_state_stays_still():
 
 
 def test_energy_budget_closes_with_shear():
-    """Full coarse clinical run with the shear-deformable shell: the budget (with the directors'
-    kinetic energy, the shear energy and the viscous dissipation of Q) closes within 2 % of the
-    jet's largest work; the tissue dissipates."""
-    h = simulate(RunParams(model="clinical")).histories
+    """Full clinical run with the shear-deformable shell at paper resolution (about 20 s): the
+    budget (with the directors' kinetic energy, the shear energy and the viscous dissipation of Q)
+    closes within 2 % of the jet's largest work; the tissue dissipates.  Paper resolution, because
+    the residual is a discretisation error that coarse resolution leaves at 2.3 % (paper 1.1 %,
+    docs/validation.md) and CH of this shell needs paper resolution anyway."""
+    h = simulate(RunParams(model="clinical", resolution="paper")).histories
     w_max = np.max(np.abs(h["jet_work"]))
     assert w_max > 1.0  # uJ
     assert np.max(np.abs(h["energy_residual"])) < 0.02 * w_max
-    assert h["tissue_dissipation"][-1] > 0.5 * h["jet_work"][-1] > 0  # measured 3.12 of 3.72 uJ
+    assert h["tissue_dissipation"][-1] > 0.5 * h["jet_work"][-1] > 0  # most of what the jet leaves
     assert np.min(h["tissue_dissipation"]) > -1e-3 * w_max
 
 

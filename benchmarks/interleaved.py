@@ -1,0 +1,116 @@
+"""Before/after timings in one process, alternating: another commit's solver against this tree's.
+
+    python benchmarks/interleaved.py REF run [coarse|paper|fine] [--repeat N]
+    python benchmarks/interleaved.py REF mfpm [--rounds N]
+
+REF is a git revision (``main``, a commit); its ``airpuff_core`` is exported with ``git archive``
+into a temporary directory under another package name, so both solvers live in this process and
+take turns: run A, run B, run A, ... (or round A, round B for the MFPM operator).  The machine's
+speed changes from minute to minute (docs/performance.md), so only figures taken in the same
+minutes compare; the per-pair ratios new/old are printed with the metrics of each run.  Both
+the wall time and the process's CPU time are measured: on a machine shared with other work, the
+CPU time leaves out the time the process waited for a core (not the slower caches).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import io
+import json
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+SHOWN = ("P1", "P2", "CH", "t_A1", "t_A2", "DA")
+
+
+def import_revision(ref: str, into: Path):
+    """``airpuff_core`` of git revision ``ref``, imported as the package ``airpuff_ref``."""
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", ref, "airpuff_core"],
+                             check=True, capture_output=True).stdout
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(into, filter="data")
+    (into / "airpuff_core").rename(into / "airpuff_ref")
+    sys.path.insert(0, str(into))
+    return importlib.import_module("airpuff_ref")
+
+
+def compare_runs(old, resolution, repeat):
+    import airpuff_core as new
+    walls = {"old": [], "new": []}
+    cpus = {"old": [], "new": []}
+    for pkg in (old, new):
+        pkg.simulate(pkg.RunParams(resolution=resolution, t_end=0.05))  # compile or load
+    for _ in range(repeat):
+        for name, pkg in (("old", old), ("new", new)):
+            t0, c0 = time.perf_counter(), time.process_time()
+            r = pkg.simulate(pkg.RunParams(resolution=resolution))
+            walls[name].append(time.perf_counter() - t0)
+            cpus[name].append(time.process_time() - c0)
+            d = r.diagnostics
+            print(json.dumps({"code": name, "resolution": resolution,
+                              "wall_s": round(walls[name][-1], 2),
+                              "cpu_s": round(cpus[name][-1], 2), "steps": d["steps"],
+                              "hyperviscous_applications_per_step":
+                                  round(d["mean_hyperviscous_substeps"], 3),
+                              **{k: r.metrics[k] for k in SHOWN}}), flush=True)
+    for label, t in (("wall", walls), ("CPU", cpus)):
+        ratios = [b / a for a, b in zip(t["old"], t["new"])]
+        print(f"{resolution}, {label} time: old {min(t['old']):.2f} s fastest, "
+              f"{statistics.median(t['old']):.2f} median; new {min(t['new']):.2f} / "
+              f"{statistics.median(t['new']):.2f}; new/old per pair "
+              f"{', '.join(f'{x:.3f}' for x in ratios)}")
+
+
+def compare_mfpm(old, rounds, repeats=200):
+    from airpuff_core.fluid import KAPPA, Operators
+    from benchmarks.bench_mfpm import moving_clouds
+    ch, clouds, fields, parity = moving_clouds("paper")
+    out = np.empty((4, ch.n, 5))
+    rates = {"old": [], "new": []}  # per CPU second
+    operators = {"old": old.fluid.Operators(ch.h, ch.area, KAPPA),
+                 "new": Operators(ch.h, ch.area, KAPPA)}
+    for ops in operators.values():
+        ops.derivatives(*clouds[0], fields, parity, out)
+    for _ in range(rounds):
+        for name, ops in operators.items():
+            c0 = time.process_time()
+            for k in range(repeats):
+                ops.derivatives(*clouds[k % 8], fields, parity, out)
+            rates[name].append(ch.n * repeats / (time.process_time() - c0) / 1e6)
+    ratios = [b / a for a, b in zip(rates["old"], rates["new"])]
+    print(f"MFPM build + derivatives of 4 fields (paper), M particle-evaluations per CPU second "
+          f"in {rounds} alternating rounds: old fastest {max(rates['old']):.2f}, median "
+          f"{statistics.median(rates['old']):.2f}; new fastest {max(rates['new']):.2f}, median "
+          f"{statistics.median(rates['new']):.2f}; new/old median of the rounds' ratios "
+          f"{statistics.median(ratios):.3f}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("ref", help="git revision to compare against, e.g. main")
+    ap.add_argument("what", choices=("run", "mfpm"))
+    ap.add_argument("resolution", nargs="?", default="paper", choices=("coarse", "paper", "fine"))
+    ap.add_argument("--repeat", type=int, default=2, help="runs of each (default 2)")
+    ap.add_argument("--rounds", type=int, default=21, help="MFPM rounds of each (default 21)")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        old = import_revision(args.ref, Path(tmp))
+        importlib.import_module("airpuff_ref.fluid")
+        if args.what == "run":
+            compare_runs(old, args.resolution, args.repeat)
+        else:
+            compare_mfpm(old, args.rounds)
+
+
+if __name__ == "__main__":
+    main()
