@@ -94,7 +94,10 @@ def plot_metrics_vs_iop(datasets, path, thickness=None, pmax=None) -> Path:
     pmax = float(first["pmax"].values[0]) if pmax is None else pmax
     fig = new_figure(4.2 * len(PANELS), 3.4 * len(rows))
     axes = fig.subplots(len(rows), len(PANELS), squeeze=False)
+    resolutions = {ds.attrs.get("param_resolution", "?") for ds in rows.values()}
     for row_axes, (title, ds) in zip(axes, rows.items()):
+        if title and len(resolutions) > 1:  # rows at different resolutions: each row says its own
+            title = f"{title} ({ds.attrs.get('param_resolution', '?')})"
         sub = ds.sel(thickness=thickness, pmax=pmax)
         e0s = [float(e0) for e0 in sub["E0"].values]
         failed = {e0: sub["status"].sel(E0=e0).values == "failed" for e0 in e0s}
@@ -103,8 +106,8 @@ def plot_metrics_vs_iop(datasets, path, thickness=None, pmax=None) -> Path:
             draw_metric_vs_iop(ax, sub["IOP"].values, lines, failed,
                                f"{title}: {label}" if title else label)
         row_axes[0].legend(fontsize="small")
-    fig.suptitle(f"air-puff sweep: thickness {thickness:g} mm, pmax {pmax:g} kPa, "
-                 f"resolution {first.attrs.get('param_resolution', '?')}")
+    fig.suptitle(f"air-puff sweep: thickness {thickness:g} mm, pmax {pmax:g} kPa"
+                 + (f", resolution {resolutions.pop()}" if len(resolutions) == 1 else ""))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
