@@ -34,9 +34,9 @@ directors alike, with the rotary inertia rho h^3 / 12 per reference area (``adva
 import numpy as np
 from numba import njit
 
-from .membrane import (add_pressure_loads, add_segment_forces, air_jet, fung_resultants,
-                       segment_strains)
-from .shell import LIMBUS_CLAMPED, add_angle_forces, bending_moments, segment_angles
+from .membrane import add_pressure_loads, add_segment_forces, fung_resultants, segment_strains
+from .shell import (LIMBUS_CLAMPED, add_angle_forces, bending_energy_density, bending_moments,
+                    fung_energy_density, net_inside_pressure, segment_angles)
 from .viscoelastic import relax_in_place
 
 SHEAR_CORRECTION = 5.0 / 6.0  # kappa of the first-order shear-deformable shell (Reissner)
@@ -134,9 +134,8 @@ def mindlin_energy(X, Y, beta, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k
     bending = 0.0
     shear = 0.0
     for s in range(n - 1):
-        quad = E1[s] * E1[s] + E2[s] * E2[s] + 2.0 * nu * E1[s] * E2[s]
-        membrane += A0[s] * (0.5 * Ebar * quad if k == 0.0 else 0.5 * Ebar / k * np.expm1(k * quad))
-        bending += A0[s] * 0.5 * D * (Ks[s] * Ks[s] + Kt[s] * Kt[s] + 2.0 * nu * Ks[s] * Kt[s])
+        membrane += A0[s] * fung_energy_density(E1[s], E2[s], Ebar, nu, k)
+        bending += A0[s] * bending_energy_density(Ks[s], Kt[s], D, nu)
         shear += A0[s] * 0.5 * S * gamma[s] * gamma[s]
     return membrane, bending, shear
 
@@ -145,9 +144,7 @@ def mindlin_energy(X, Y, beta, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k
 def _mindlin_total_forces(X, Y, beta, phi, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D,
                           S, p_start, p_end, frac, t, jet, work, Fx, Fy, T, q, ve_mode,
                           ve_previous, ve_overstress, ve_decay, ve_weight):
-    for i in range(X.shape[0]):
-        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - air_jet(t, phi[i], jet[0], jet[1],
-                                                                      jet[2], jet[3], jet[4])
+    net_inside_pressure(phi, p_start, p_end, frac, t, jet, q)
     mindlin_internal_forces(X, Y, beta, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D, S,
                             work, Fx, Fy, T, ve_mode, ve_previous, ve_overstress, ve_decay,
                             ve_weight)

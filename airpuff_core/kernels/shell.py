@@ -209,12 +209,20 @@ def shell_energy(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbu
 
 
 @njit(cache=True)
+def net_inside_pressure(phi, p_start, p_end, frac, t, jet, q):
+    """q = p_start + frac (p_end - p_start) - p_jet(t, phi) [Pa] on the cornea nodes: the fluid
+    pressure interpolated within the step (frac in [0, 1]) less the air jet (eq. (11),
+    jet = pmax, a, b, T, t0)."""
+    for i in range(phi.shape[0]):
+        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - air_jet(t, phi[i], jet[0], jet[1],
+                                                                      jet[2], jet[3], jet[4])
+
+
+@njit(cache=True)
 def _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
                         Ebar, nu, k, D, p_start, p_end, frac, t, jet, work, Fx, Fy, q,
                         ve_mode, ve_previous, ve_overstress, ve_decay, ve_weight):
-    for i in range(X.shape[0]):
-        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - air_jet(t, phi[i], jet[0], jet[1],
-                                                                      jet[2], jet[3], jet[4])
+    net_inside_pressure(phi, p_start, p_end, frac, t, jet, q)
     shell_internal_forces(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus, Ebar,
                           nu, k, D, work, Fx, Fy, ve_mode, ve_previous, ve_overstress, ve_decay,
                           ve_weight)
