@@ -15,11 +15,11 @@ from .params import ParameterError, RunParams
 from .version import __version__
 
 
-def simulate(params, progress=None):
+def simulate(params, progress=None, threads=None):
     """Run one coupled simulation; see :func:`airpuff_core.solver.simulate`."""
     from .solver import simulate as _simulate
 
-    return _simulate(params, progress=progress)
+    return _simulate(params, progress=progress, threads=threads)
 
 
 __all__ = ["RunParams", "ParameterError", "SimulationError", "simulate", "__version__"]

@@ -39,7 +39,9 @@ from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_dive
                             impose_cornea, interface_pressure_change, max_density_deviation,
                             max_speed, tait_pressure, tait_pressure_at)
 from .kernels.membrane import cornea_polygon_volume
-from .kernels.hyperviscosity import hyperviscous_flow_increments, legendre_plan
+from .kernels.mfpm import chunks
+from .kernels.hyperviscosity import (hyperviscous_flow_increments, increments_work,
+                                     legendre_plan)
 from .kernels.nodes import AXIS, CORNEA, WALL
 from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from .params import RunParams
@@ -155,7 +157,7 @@ class CoupledModel:
                                                "p_half", "vx_new", "vy_new", "x_new", "y_new",
                                                "rho_new", "div_new", "x_half", "y_half")}
         self._grad_p = np.zeros((1, n, 2))  # (p_x, p_y) at t^{n+1/2}
-        self._hv_work = np.empty((15, n))
+        self._hv_work = increments_work(n)
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self._dv_new = np.zeros((2, n, 5))
@@ -334,8 +336,8 @@ class CoupledModel:
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
                                      *self.ops_n.hyperviscous_flow_args(),
                                      self.hv_consistent_density, self.hv_consistent_velocity,
-                                     scale, dt, stages, supersteps,
-                                     self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])
+                                     scale, dt, stages, supersteps, chunks(self.x.shape[0]),
+                                     *self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])
         w["hv_rho"] /= dt
         w["hv_vx"] /= dt
         w["hv_vy"] /= dt

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SimulationError
-from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
+from .kernels.mfpm import chunks, hyperviscous_term, mfpm_derivatives
 from .kernels.neighbours import build_neighbours, max_squared_move
 from .kernels.nodes import axis_halved_area
 
@@ -151,7 +151,8 @@ class Operators:
         status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
                                   t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
                                   self.count, self.nbr, self.mirrored, self.sign, self.lap_b,
-                                  self.lap_c, laplacian, laplacian and self.consistent)
+                                  self.lap_c, laplacian, laplacian and self.consistent,
+                                  chunks(nodes.shape[0]))
         if laplacian:
             self.has_laplacian = True
             axis_halved_area(x, self.area, self.adjoint_weight)
@@ -181,10 +182,10 @@ class Operators:
         return (*self.laplacian_args(), self.lap_c, self.adjoint_weight)
 
     def hyperviscous_flow_args(self):
-        """(start, nbr, mirrored, sign, count, lap_b, lap_c, weight) for
+        """(start, nbr, sign, count, lap_b, lap_c, weight) for
         ``kernels.mfpm.hyperviscous_flow_operator``."""
-        start, nbr, mirrored, count, lap_b = self.laplacian_args()
-        return start, nbr, mirrored, self.sign, count, lap_b, self.lap_c, self.adjoint_weight
+        start, nbr, _, count, lap_b = self.laplacian_args()
+        return start, nbr, self.sign, count, lap_b, self.lap_c, self.adjoint_weight
 
     def hyperviscous(self, f, parity, scale, work1, work2, out, consistent=False):
         """out = scale * H f, the hyperviscous term with H = L^3, or K^* L K if ``consistent``

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from .coupling import CoupledModel
@@ -194,6 +195,7 @@ class Recorder:
             "mean_hyperviscous_substeps": (float(np.mean(self.hv_substeps)) if self.hv_substeps
                                            else 0.0),
             "wall_s": wall_s,
+            "threads": numba.get_num_threads(),  # of the kernels; the result does not depend on it
             "prestretch": model.cornea_model.lambda0,
             "bending_rigidity_N_m": model.cornea_model.D,
             "R_ref_mm": model.cornea_model.R_ref * 1e3,

@@ -15,17 +15,25 @@ from .coupling import CoupledModel
 from .params import RunParams
 from .recorder import Recorder
 from .result import RunResult
+from .threads import solver_threads
 
 PROGRESS_INTERVAL = 0.2  # s of wall time between calls of ``progress``
 
 
-def simulate(params: RunParams, progress=None, reuse: bool = True) -> RunResult:
+def simulate(params: RunParams, progress=None, reuse: bool = True, threads=None) -> RunResult:
     """Run one coupled simulation and return its histories, snapshots and metrics.
 
     ``progress(t_ms, t_end_ms)`` is called now and then.  ``reuse``: see ``CoupledModel``.
-    Raises SimulationError on blow-up, non-convergent coupling or an ill-conditioned operator
-    (the message names the time).
+    ``threads``: how many threads the kernels use (``threads.py``; default every core Numba
+    sees); the result does not depend on it.  Raises SimulationError on blow-up, non-convergent
+    coupling or an ill-conditioned operator (the message names the time), ParameterError on a
+    bad ``threads``.
     """
+    with solver_threads(threads):
+        return _simulate(params, progress, reuse)
+
+
+def _simulate(params, progress, reuse):
     wall0 = _time.monotonic()
     model = CoupledModel(params, reuse)
     recorder = Recorder(model)

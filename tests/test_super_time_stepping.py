@@ -11,8 +11,9 @@ from numpy.polynomial import legendre
 from airpuff_core import RunParams
 from airpuff_core.coupling import CoupledModel
 from airpuff_core import coupling
-from airpuff_core.kernels.hyperviscosity import hyperviscous_flow_increments, legendre_plan
-from airpuff_core.kernels.mfpm import hyperviscous_flow_operator
+from airpuff_core.kernels.hyperviscosity import (hyperviscous_flow_increments, increments_work,
+                                                 legendre_plan)
+from airpuff_core.kernels.mfpm import flow_operator_work, hyperviscous_flow_operator
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def _scaled_operator_matrix(model, slot):
     for j in range(n):
         fields = np.zeros((3, n))
         fields[slot, j] = 1.0
-        hyperviscous_flow_operator(*fields, *_operator_args(model), np.empty((3, n)), *out)
+        hyperviscous_flow_operator(*fields, *_operator_args(model), 1, flow_operator_work(n), *out)
         M[:, j] = scale * out[slot]
     return M, scale
 
@@ -43,7 +44,7 @@ def _increments(model, fields, pinned_vx, pinned_vy, scale, dt, stages, superste
     n = model.x.size
     out = np.empty((3, n))
     hyperviscous_flow_increments(*fields, pinned_vx, pinned_vy, *_operator_args(model), scale,
-                                 dt, stages, supersteps, np.empty((15, n)), *out)
+                                 dt, stages, supersteps, 1, *increments_work(n), *out)
     return out
 
 

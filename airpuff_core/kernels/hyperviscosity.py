@@ -27,9 +27,10 @@ than forward-Euler sub-cycling.
 
 import math
 
+import numpy as np
 from numba import njit
 
-from .mfpm import hyperviscous_flow_operator
+from .mfpm import flow_operator_work, hyperviscous_flow_operator
 
 
 def legendre_plan(steps):
@@ -46,26 +47,32 @@ def legendre_plan(steps):
     return best
 
 
+def increments_work(n):
+    """Scratch arrays of ``hyperviscous_flow_increments`` for n nodes."""
+    return np.empty((12, n)), flow_operator_work(n)
+
+
 @njit(cache=True)
-def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, mirrored, sign,
-                                 count, lap_b, lap_c, area, consistent_density, consistent_velocity,
-                                 scale, dt, stages, supersteps, work, out_rho, out_vx, out_vy):
+def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, sign, count,
+                                 lap_b, lap_c, area, consistent_density, consistent_velocity,
+                                 scale, dt, stages, supersteps, n_chunks, work, operator_work,
+                                 out_rho, out_vx, out_vy):
     """Change of rho, v_x and v_y over dt [s] under d f/dt = scale H f by ``supersteps`` RKL1
     super-steps of dt / supersteps with ``stages`` stages each (module docstring):
     out_f = Y - f.  H and its arguments (start ... consistent_velocity) as
     ``hyperviscous_flow_operator``; ``scale`` = gamma c h^5 per node.
 
     Nodes with ``pinned_vx`` / ``pinned_vy`` keep their velocity component in every stage
-    (Dirichlet nodes: walls, the cornea, v_x on the axis); no density is pinned.  ``work`` is a
-    (15, n) scratch array.
+    (Dirichlet nodes: walls, the cornea, v_x on the axis); no density is pinned.  ``work`` and
+    ``operator_work`` are the scratch arrays of ``increments_work``; ``n_chunks``: the operator's
+    node chunks (``kernels.mfpm.chunks``; the result does not depend on it).
     """
     n = rho.shape[0]
     w1 = 2.0 / (stages * (stages + 1))
-    base_r, base_x, base_y = work[12], work[13], work[14]  # Y_0 of the super-step
+    base_r, base_x, base_y = work[9], work[10], work[11]  # Y_0 of the super-step
     prev_r, prev_x, prev_y = work[0], work[1], work[2]  # Y_{j-1}
     old_r, old_x, old_y = work[3], work[4], work[5]  # Y_{j-2}, overwritten by Y_j
     h_r, h_x, h_y = work[6], work[7], work[8]  # H Y_{j-1}
-    operator_work = work[9:12]
     for i in range(n):
         prev_r[i] = rho[i]
         prev_x[i] = vx[i]
@@ -76,9 +83,9 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
             base_r[i] = prev_r[i]
             base_x[i] = prev_x[i]
             base_y[i] = prev_y[i]
-        hyperviscous_flow_operator(base_r, base_x, base_y, start, nbr, mirrored, sign, count,
+        hyperviscous_flow_operator(base_r, base_x, base_y, start, nbr, sign, count,
                                    lap_b, lap_c, area, consistent_density, consistent_velocity,
-                                   operator_work, h_r, h_x, h_y)
+                                   n_chunks, operator_work, h_r, h_x, h_y)
         tau = w1 * tau_step
         for i in range(n):
             s = scale[i]
@@ -92,9 +99,10 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
             mu = (2.0 * j - 1.0) / j
             nu = (1.0 - j) / j
             tau = mu * w1 * tau_step
-            hyperviscous_flow_operator(prev_r, prev_x, prev_y, start, nbr, mirrored, sign,
-                                       count, lap_b, lap_c, area, consistent_density,
-                                       consistent_velocity, operator_work, h_r, h_x, h_y)
+            hyperviscous_flow_operator(prev_r, prev_x, prev_y, start, nbr, sign, count,
+                                       lap_b, lap_c, area, consistent_density,
+                                       consistent_velocity, n_chunks, operator_work, h_r, h_x,
+                                       h_y)
             for i in range(n):
                 s = scale[i]
                 old_r[i] = mu * prev_r[i] + nu * old_r[i] + tau * (h_r[i] * s)

@@ -26,7 +26,30 @@ semi-definite in the A-weighted inner product: its powers damp and never amplify
 """
 
 import numpy as np
-from numba import njit
+from numba import get_num_threads, njit, prange
+
+# reassociation and fused multiply-adds only, so that NaN and infinity keep their meaning
+MFPM_FASTMATH = {"reassoc", "contract", "nsz"}
+CHUNKS_PER_THREAD = 4  # contiguous node ranges per thread: supports differ in size near walls
+SERIAL_BELOW = 256  # fewer nodes (the cornea's, in the coupling) are built by one thread: waking
+# the others costs more than they would save
+
+
+def chunks(n_items):
+    """How many contiguous chunks a parallel loop over ``n_items`` items takes: a few per thread
+    of ``numba.get_num_threads()`` (one with one thread, so that a serial run is the plain
+    loop), at most one per item.  Called from Python: a compiled function that asks for the
+    thread count could not be cached."""
+    threads = get_num_threads()
+    if threads == 1 or n_items < SERIAL_BELOW:
+        return 1
+    return min(n_items, CHUNKS_PER_THREAD * threads)
+
+
+@njit(cache=True)
+def chunk_bounds(n_items, n_chunks, c):
+    """[lo, hi): the items of chunk c of n_chunks nearly equal contiguous chunks."""
+    return c * n_items // n_chunks, (c + 1) * n_items // n_chunks
 
 
 @njit(cache=True)
@@ -119,10 +142,10 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
 LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H^4
 
 
-@njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
+@njit(cache=True, parallel=True, fastmath=MFPM_FASTMATH)
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
                      cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c,
-                     store_laplacian, store_consistent):
+                     store_laplacian, store_consistent, n_chunks):
     """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
     to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
     or only (f_x, f_y) when ``out`` has two columns.
@@ -163,10 +186,12 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     first moment of the Brookshaw weights (zero on a full symmetric support, not at a wall) and
     g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).
 
+    The nodes are built in ``n_chunks`` contiguous chunks (``chunks``: one or a few per
+    thread), in parallel; a node's results depend on its own support only, so they are the
+    same, bit for bit, for any number of threads or chunks.
+
     Returns 0, or i+1 for the first node whose matrix is singular or worse than ``cond_max``.
     """
-    n_fields = fields.shape[0]
-    n_rows = out.shape[2]  # 5, or 2 for the gradient only
     n = x.shape[0]
     node = np.empty((n, 4))
     for i in range(n):
@@ -174,6 +199,31 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
         node[i, 1] = y[i]
         node[i, 2] = h[i]
         node[i, 3] = inv_h[i]
+    n_chunks = max(1, min(n_chunks, nodes.shape[0]))
+    if n_chunks == 1:
+        return _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
+                            cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b,
+                            lap_c, store_laplacian, store_consistent)
+    status = np.zeros(n_chunks, np.int64)
+    for c in prange(n_chunks):
+        lo, hi = chunk_bounds(nodes.shape[0], n_chunks, c)
+        status[c] = _build_nodes(nodes[lo:hi], node, area, kappa, start, nbr, mirrored, fields,
+                                 parity, cond_max, out, cond, lap_count, lap_nbr, lap_mirrored,
+                                 lap_sign, lap_b, lap_c, store_laplacian, store_consistent)
+    for c in range(n_chunks):  # the first failing node in the order of ``nodes``
+        if status[c]:
+            return status[c]
+    return 0
+
+
+@njit(cache=True, fastmath=MFPM_FASTMATH)
+def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity, cond_max, out,
+                 cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c, store_laplacian,
+                 store_consistent):
+    """The loop of ``mfpm_derivatives`` over ``nodes``, one after the other, with its own
+    scratch rows; ``node`` holds each node's (x, y, h, 1/h) side by side."""
+    n_fields = fields.shape[0]
+    n_rows = out.shape[2]  # 5, or 2 for the gradient only
     width = 1
     for i in nodes:
         width = max(width, start[i + 1] - start[i])
@@ -190,10 +240,10 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     inv_kappa = 1.0 / kappa
     status = 0
     for i in nodes:
-        xi = x[i]
-        yi = y[i]
-        hi = h[i]
-        inv_hi = inv_h[i]
+        xi = node[i, 0]
+        yi = node[i, 1]
+        hi = node[i, 2]
+        inv_hi = node[i, 3]
         inv_s = inv_kappa * inv_hi
         p0 = start[i]
         n_cand = start[i + 1] - p0
@@ -389,13 +439,10 @@ def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area
 
 
 @njit(cache=True)
-def _pair_flow(rho, vx, vy, start, nbr, sign, count, coef, out_rho, out_vx, out_vy):
-    """The pair operator of coefficients ``coef`` (Brookshaw's ``lap_b`` or the consistent
-    ``lap_c``) on the three flow fields in one pass over the pairs (rho and v_y even in x, v_x
-    odd: an image carries sign * v_x, ``sign`` = -1.0 for an image): each field's sum is the one
-    ``brookshaw_laplacian`` forms.  Multiplying by the sign, not branching on ``mirrored``, and
-    one coefficient array make the pass about 1.5 times faster (measured)."""
-    for i in range(rho.shape[0]):
+def _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, out_rho, out_vx,
+                    out_vy):
+    """Rows lo ... hi - 1 of ``pair_flow``."""
+    for i in range(lo, hi):
         acc_r = 0.0
         acc_x = 0.0
         acc_y = 0.0
@@ -414,77 +461,174 @@ def _pair_flow(rho, vx, vy, start, nbr, sign, count, coef, out_rho, out_vx, out_
 
 
 @njit(cache=True)
-def _even_pair_sum(f, start, nbr, count, coef, out):
-    """out_i = sum_j coef_ij (f_j - f_i) for a field even in x (an image carries f_j itself):
-    ``brookshaw_laplacian`` with parity 1, without its branch on the image flag (1.6 times as
-    fast in isolation, 4 % of an application of K^* L K / L^3, measured)."""
-    for i in range(f.shape[0]):
-        acc = 0.0
-        fi = f[i]
+def _pair_flow_split_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef_density,
+                          coef_velocity, out_rho, out_vx, out_vy):
+    """Rows lo ... hi - 1 of ``pair_flow_split``."""
+    for i in range(lo, hi):
+        acc_r = 0.0
+        acc_x = 0.0
+        acc_y = 0.0
+        ri = rho[i]
+        xi = vx[i]
+        yi = vy[i]
         for k in range(start[i], start[i] + count[i]):
-            acc += coef[k] * (f[nbr[k]] - fi)
-        out[i] = acc
+            j = nbr[k]
+            c = coef_velocity[k]
+            acc_r += coef_density[k] * (rho[j] - ri)
+            acc_x += c * (sign[k] * vx[j] - xi)
+            acc_y += c * (vy[j] - yi)
+        out_rho[i] = acc_r
+        out_vx[i] = acc_x
+        out_vy[i] = acc_y
+
+
+@njit(cache=True, parallel=True)
+def pair_flow(rho, vx, vy, start, nbr, sign, count, coef, n_chunks, out_rho, out_vx, out_vy):
+    """The pair operator (K f)_i = sum_j c_ij (f_j - f_i) of coefficients ``coef`` (Brookshaw's
+    ``lap_b`` or the consistent ``lap_c``) on the three flow fields in one pass over the pairs
+    (rho and v_y even in x, v_x odd: an image carries sign * v_x, ``sign`` = -1.0 for an image):
+    each field's sum is the one ``brookshaw_laplacian`` forms.  Multiplying by the sign, not
+    branching on ``mirrored``, and one coefficient array make the pass about 1.5 times faster
+    (measured).  Each node's sums are its own, so the ``n_chunks`` contiguous chunks of nodes
+    (``chunks``) run in parallel and give the same result for any number."""
+    n = rho.shape[0]
+    if n_chunks <= 1:
+        _pair_flow_rows(0, n, rho, vx, vy, start, nbr, sign, count, coef, out_rho, out_vx, out_vy)
+        return
+    for c in prange(n_chunks):
+        lo, hi = chunk_bounds(n, n_chunks, c)
+        _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, out_rho, out_vx,
+                        out_vy)
+
+
+@njit(cache=True, parallel=True)
+def pair_flow_split(rho, vx, vy, start, nbr, sign, count, coef_density, coef_velocity, n_chunks,
+                    out_rho, out_vx, out_vy):
+    """``pair_flow`` with the coefficients ``coef_density`` on rho and ``coef_velocity`` on v_x,
+    v_y (the first pass of K^* L K on the velocity with L^3 on the density): one pass instead
+    of two.  A second coefficient array costs a quarter more than ``pair_flow`` (measured), so
+    a pass with one coefficient keeps its own kernel."""
+    n = rho.shape[0]
+    if n_chunks <= 1:
+        _pair_flow_split_rows(0, n, rho, vx, vy, start, nbr, sign, count, coef_density,
+                              coef_velocity, out_rho, out_vx, out_vy)
+        return
+    for c in prange(n_chunks):
+        lo, hi = chunk_bounds(n, n_chunks, c)
+        _pair_flow_split_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef_density,
+                              coef_velocity, out_rho, out_vx, out_vy)
+
+
+ADJOINT_CHUNKS = 2  # fixed, so that the adjoint's sums do not depend on the number of threads
 
 
 @njit(cache=True)
-def _adjoint_flow(rho, vx, vy, start, nbr, mirrored, count, coef, area, with_density, out_rho,
-                  out_vx, out_vy):
-    """``pair_operator_adjoint`` of v_x (odd in x) and v_y (even), and with ``with_density`` of
-    rho (even; otherwise ``out_rho`` is left alone), in one pass over the pairs."""
-    n = rho.shape[0]
-    for i in range(n):
-        out_vx[i] = 0.0
-        out_vy[i] = 0.0
-        if with_density:
-            out_rho[i] = 0.0
-    for i in range(n):
+def _adjoint_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_density, area,
+                  with_density, acc_rho, acc_vx, acc_vy, out_rho):
+    """Nodes lo ... hi - 1 of ``adjoint_flow``: their pairs scattered into ``acc_*`` (zeroed
+    here), and without ``with_density`` rho's gathered pair sums into ``out_rho``."""
+    for i in range(acc_vx.shape[0]):
+        acc_vx[i] = 0.0
+        acc_vy[i] = 0.0
+    if with_density:
+        for i in range(acc_rho.shape[0]):
+            acc_rho[i] = 0.0
+    for i in range(lo, hi):
         a = area[i]
-        ar = a * rho[i]
+        ri = rho[i]
+        ar = a * ri
         ax = a * vx[i]
         ay = a * vy[i]
         diagonal = 0.0
+        gather_rho = 0.0
         for k in range(start[i], start[i] + count[i]):
             j = nbr[k]
-            c = coef[k]
-            diagonal += c
+            b = coef[k]
+            diagonal += b
             if with_density:
-                out_rho[j] += c * ar
-            out_vx[j] += -c * ax if mirrored[k] else c * ax
-            out_vy[j] += c * ay
+                acc_rho[j] += b * ar
+            else:
+                gather_rho += coef_density[k] * (rho[j] - ri)
+            acc_vx[j] += sign[k] * b * ax
+            acc_vy[j] += b * ay
         if with_density:
-            out_rho[i] -= diagonal * ar
-        out_vx[i] -= diagonal * ax
-        out_vy[i] -= diagonal * ay
+            acc_rho[i] -= diagonal * ar
+        else:
+            out_rho[i] = gather_rho
+        acc_vx[i] -= diagonal * ax
+        acc_vy[i] -= diagonal * ay
+
+
+@njit(cache=True, parallel=True)
+def adjoint_flow(rho, vx, vy, start, nbr, sign, count, coef, coef_density, area, with_density,
+                 n_chunks, scatter, out_rho, out_vx, out_vy):
+    """``pair_operator_adjoint`` of v_x (odd in x) and v_y (even), in one pass over the pairs;
+    with ``with_density`` also that of rho (even), otherwise rho's pair operator of coefficients
+    ``coef_density`` (a gather, as ``pair_flow``), in the same pass.
+
+    The adjoint scatters node i's pairs into its neighbours' sums.  The nodes are split into
+    ADJOINT_CHUNKS contiguous chunks, each scattering into its own rows of ``scatter``
+    (ADJOINT_CHUNKS, 3, n), which are then added in chunk order: threads never write the same
+    sum, and the order of every addition is fixed, so the result is the same for any number of
+    threads (``n_chunks`` > 1 runs the chunks in parallel)."""
+    n = rho.shape[0]
+    if n_chunks <= 1:
+        for c in range(ADJOINT_CHUNKS):
+            lo, hi = chunk_bounds(n, ADJOINT_CHUNKS, c)
+            _adjoint_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_density, area,
+                          with_density, scatter[c, 0], scatter[c, 1], scatter[c, 2], out_rho)
+    else:
+        for c in prange(ADJOINT_CHUNKS):
+            lo, hi = chunk_bounds(n, ADJOINT_CHUNKS, c)
+            _adjoint_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_density, area,
+                          with_density, scatter[c, 0], scatter[c, 1], scatter[c, 2], out_rho)
     for i in range(n):
         inv_a = 1.0 / area[i]
+        total_vx = scatter[0, 1, i]
+        total_vy = scatter[0, 2, i]
+        total_rho = scatter[0, 0, i]
+        for c in range(1, ADJOINT_CHUNKS):
+            total_vx += scatter[c, 1, i]
+            total_vy += scatter[c, 2, i]
+            if with_density:
+                total_rho += scatter[c, 0, i]
+        out_vx[i] = total_vx * inv_a
+        out_vy[i] = total_vy * inv_a
         if with_density:
-            out_rho[i] *= inv_a
-        out_vx[i] *= inv_a
-        out_vy[i] *= inv_a
+            out_rho[i] = total_rho * inv_a
+
+
+def flow_operator_work(n):
+    """Scratch array of ``hyperviscous_flow_operator`` for n nodes."""
+    return np.empty((1 + ADJOINT_CHUNKS, 3, n))
 
 
 @njit(cache=True)
-def hyperviscous_flow_operator(rho, vx, vy, start, nbr, mirrored, sign, count, lap_b, lap_c, area,
-                               consistent_density, consistent_velocity, work, out_rho, out_vx,
-                               out_vy):
+def hyperviscous_flow_operator(rho, vx, vy, start, nbr, sign, count, lap_b, lap_c, area,
+                               consistent_density, consistent_velocity, n_chunks, work, out_rho,
+                               out_vx, out_vy):
     """out_f = H f for the three flow fields (rho and v_y even in x, v_x odd): H = K^* L K on the
     density with ``consistent_density`` and on the velocity with ``consistent_velocity``, L^3
     otherwise (see ``hyperviscous_term``; ``consistent_density`` requires
     ``consistent_velocity``, the operators ``consistent`` and ``consistent_velocity`` of
     docs/model.md section 4).  The pair lists are ``Operators.hyperviscous_flow_args``; one pass
-    over the pairs serves the three fields; ``work`` is a (3, n) scratch array.  This is the
+    over the pairs serves the three fields, and an application of H takes three passes (L^3 on
+    rho with K^* L K on the velocity included: its passes ride along); ``work`` is the scratch
+    array of ``flow_operator_work``.  This is the
     only place where the time integration of the hyperviscosity (``kernels/hyperviscosity.py``)
     meets the operator."""
-    b_r, b_x, b_y = work[0], work[1], work[2]
-    _pair_flow(rho, vx, vy, start, nbr, sign, count, lap_c if consistent_velocity else lap_b,
-               out_rho, out_vx, out_vy)
-    if consistent_velocity and not consistent_density:
-        _even_pair_sum(rho, start, nbr, count, lap_b, out_rho)
-    _pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, b_r, b_x, b_y)
-    if consistent_velocity:
-        _adjoint_flow(b_r, b_x, b_y, start, nbr, mirrored, count, lap_c, area,
-                      consistent_density, out_rho, out_vx, out_vy)
-        if not consistent_density:
-            _even_pair_sum(b_r, start, nbr, count, lap_b, out_rho)
+    b_r, b_x, b_y = work[0, 0], work[0, 1], work[0, 2]
+    scatter = work[1:]
+    if not consistent_velocity:
+        pair_flow(rho, vx, vy, start, nbr, sign, count, lap_b, n_chunks, out_rho, out_vx, out_vy)
+        pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, n_chunks, b_r, b_x, b_y)
+        pair_flow(b_r, b_x, b_y, start, nbr, sign, count, lap_b, n_chunks, out_rho, out_vx, out_vy)
+        return
+    if consistent_density:
+        pair_flow(rho, vx, vy, start, nbr, sign, count, lap_c, n_chunks, out_rho, out_vx, out_vy)
     else:
-        _pair_flow(b_r, b_x, b_y, start, nbr, sign, count, lap_b, out_rho, out_vx, out_vy)
+        pair_flow_split(rho, vx, vy, start, nbr, sign, count, lap_b, lap_c, n_chunks, out_rho,
+                        out_vx, out_vy)
+    pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, n_chunks, b_r, b_x, b_y)
+    adjoint_flow(b_r, b_x, b_y, start, nbr, sign, count, lap_c, lap_b, area, consistent_density,
+                 n_chunks, scatter, out_rho, out_vx, out_vy)

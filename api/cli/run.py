@@ -20,6 +20,9 @@ def add_run_parser(sub) -> None:
     p.add_argument("--out", metavar="FILE.nc", default=None, help="write the run's netCDF here")
     p.add_argument("--json", action="store_true",
                    help="print exactly one JSON object with the metrics on stdout")
+    p.add_argument("--threads", metavar="N", default=None,
+                   help="threads of the solver's kernels, 1 to the cores Numba sees (default all "
+                        "of them); the results do not depend on it")
     p.set_defaults(func=run_command)
 
 
@@ -40,17 +43,19 @@ def format_metrics(metrics: dict, notes: dict | None = None) -> str:
 def run_command(args) -> int:
     from airpuff_core import simulate
     from airpuff_core.errors import SimulationError
+    from airpuff_core.threads import check_threads
 
     prog = "airpuff run"
     try:
         params = params_from_args(args)
+        threads = check_threads(args.threads)
     except ParameterError as err:
         fail(prog, err)
     progress = TerminalProgress(f"run {params.resolution}") if not args.json else None
     t_start = time.monotonic()
     failure = None
     try:
-        result = simulate(params, progress=progress)
+        result = simulate(params, progress=progress, threads=threads)
     except SimulationError as err:
         failure = err
     finally:
@@ -71,7 +76,8 @@ def run_command(args) -> int:
         d = result.diagnostics
         print(f"airpuff run: {params.resolution} resolution, {d.get('n_fluid')} fluid nodes, "
               f"{d.get('n_cornea')} cornea nodes, {d.get('steps')} steps, "
-              f"dt {d.get('dt_mean_us', float('nan')):.3g} us, wall {wall:.1f} s")
+              f"dt {d.get('dt_mean_us', float('nan')):.3g} us, wall {wall:.1f} s on "
+              f"{d.get('threads')} thread(s)")
         print(format_metrics(result.metrics, result.metric_notes))
         if args.out:
             print(f"wrote {args.out}")

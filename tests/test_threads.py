@@ -1,0 +1,120 @@
+"""Threads (airpuff_core/threads.py): the kernels split their nodes into chunks that run in
+parallel, and a run's numbers must not depend on how many threads or chunks there are.  The
+fused hyperviscous operator is checked against the single-field reference kernels
+(``hyperviscous_term``: one field, one pass per operator factor, the adjoint by its own scatter),
+which share no code with it."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from airpuff_core import ParameterError, RunParams, simulate
+from airpuff_core.coupling import CoupledModel
+from airpuff_core.fluid import COND_MAX
+from airpuff_core.kernels.mfpm import (flow_operator_work, hyperviscous_flow_operator,
+                                       hyperviscous_term, mfpm_derivatives)
+from airpuff_core.threads import check_threads, max_threads
+
+OPERATORS = ("brookshaw", "consistent_velocity", "consistent")
+
+
+@pytest.fixture(scope="module", params=OPERATORS)
+def model(request):
+    return CoupledModel(RunParams(resolution="coarse",
+                                  hyperviscosity_operator=request.param))
+
+
+def _flow(model, fields, n_chunks):
+    n = model.x.size
+    out = np.empty((3, n))
+    hyperviscous_flow_operator(*fields, *model.ops_n.hyperviscous_flow_args(),
+                               model.hv_consistent_density, model.hv_consistent_velocity,
+                               n_chunks, flow_operator_work(n), *out)
+    return out
+
+
+def test_flow_operator_is_the_single_field_operator_on_each_field(model):
+    """H rho, H v_x, H v_y of the three-field kernel = the reference kernel on each field, with
+    rho and v_y even and v_x odd in x, and K^* L K where the option asks for it."""
+    n = model.x.size
+    rng = np.random.default_rng(1)
+    fields = rng.standard_normal((3, n))
+    out = _flow(model, fields, 1)
+    ops = model.ops_n
+    w1, w2 = np.empty(n), np.empty(n)
+    for slot, parity, consistent in ((0, 1.0, model.hv_consistent_density),
+                                     (1, -1.0, model.hv_consistent_velocity),
+                                     (2, 1.0, model.hv_consistent_velocity)):
+        ref = np.empty(n)
+        hyperviscous_term(fields[slot], parity, *ops.hyperviscosity_args(), consistent,
+                          np.ones(n), w1, w2, ref)
+        scale = np.abs(ref).max()
+        assert np.abs(out[slot] - ref).max() <= 1e-12 * scale, slot
+
+
+@pytest.mark.parametrize("n_chunks", [2, 3, 7])
+def test_flow_operator_does_not_depend_on_the_chunks(model, n_chunks):
+    rng = np.random.default_rng(2)
+    fields = rng.standard_normal((3, model.x.size))
+    assert np.array_equal(_flow(model, fields, 1), _flow(model, fields, n_chunks))
+
+
+@pytest.mark.parametrize("n_chunks", [2, 5])
+def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
+    """Every output of the build (derivatives, condition numbers, the Brookshaw and consistent
+    pair lists) is the same, bit for bit, with one chunk or several."""
+    model = CoupledModel(RunParams(resolution="coarse"))
+    ops = model.ops_n
+    n = model.x.size
+    rng = np.random.default_rng(3)
+    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.kind == 0)
+    fields = rng.standard_normal((3, n))
+    parity = np.array([1.0, -1.0, 1.0])
+    ops.table.update(x, model.y)
+    t = ops.table
+
+    def build(chunks):
+        out = np.zeros((3, n, 5))
+        arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
+                  np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
+                  np.zeros_like(ops.lap_c)]
+        status = mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
+                                  t.nbr, t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out,
+                                  *arrays, True, True, chunks)
+        return status, out, arrays
+
+    status1, out1, arrays1 = build(1)
+    status2, out2, arrays2 = build(n_chunks)
+    assert status1 == status2 == 0
+    assert np.array_equal(out1, out2)
+    for a, b in zip(arrays1, arrays2):
+        assert np.array_equal(a, b)
+
+
+def test_a_run_does_not_depend_on_the_threads():
+    """A coarse clinical run (shear shell, viscoelasticity, compliant globe, consistent
+    hyperviscosity) on one thread and on two: every history, snapshot and metric the same."""
+    if max_threads() < 2:
+        pytest.skip("one thread only here (no second core or no OpenMP/TBB threading layer)")
+    params = RunParams(resolution="coarse", model="clinical", t_end=12.0)
+    one = simulate(params, threads=1).to_dataset()
+    two = simulate(params, threads=2).to_dataset()
+    assert one.attrs["solver_threads"] == 1 and two.attrs["solver_threads"] == 2
+    for name in one.data_vars:
+        assert np.array_equal(one[name].values, two[name].values, equal_nan=True), name
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, "x", True, 10 ** 6])
+def test_bad_threads_name_the_parameter_and_the_range(bad):
+    with pytest.raises(ParameterError, match=r"invalid threads=.*accepted an integer in \[1, "):
+        check_threads(bad)
+
+
+def test_cli_rejects_bad_threads_with_one_line():
+    proc = subprocess.run([sys.executable, "-m", "api.cli", "run", "--threads", "0"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "threads" in lines[0] and "[1, " in lines[0], proc.stderr
