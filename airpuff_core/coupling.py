@@ -39,13 +39,13 @@ from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_dive
                             impose_cornea, interface_pressure_change, max_density_deviation,
                             max_speed, tait_pressure, tait_pressure_at)
 from .kernels.membrane import cornea_polygon_volume
-from .kernels.mfpm import chunks
 from .kernels.hyperviscosity import (hyperviscous_flow_increments, increments_work,
                                      legendre_plan)
 from .kernels.nodes import AXIS, CORNEA, WALL
 from .membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from .params import RunParams
 from .shell import shell_for_run
+from .threads import chunks
 from .viscoelastic import ViscoelasticHistory
 
 # forward-Euler step of the HV <= HV_SAFETY / (spectral radius of the HV operator); FE limit 2,

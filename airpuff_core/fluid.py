@@ -13,9 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SimulationError
-from .kernels.mfpm import chunks, hyperviscous_term, mfpm_derivatives
+from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
 from .kernels.neighbours import build_neighbours, max_squared_move
 from .kernels.nodes import axis_halved_area
+from .threads import chunks
 
 KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
 MAX_NEIGHBOURS = 128

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from .coupling import CoupledModel
@@ -28,6 +27,7 @@ from .kernels.membrane import air_jet
 from .metrics import compute_metrics
 from .params import MMHG_PA
 from .result import HISTORIES, SNAPSHOT_LABELS, RunResult
+from .threads import current_threads
 
 
 def probe(model: CoupledModel, full: bool = True) -> dict[str, float]:
@@ -195,7 +195,7 @@ class Recorder:
             "mean_hyperviscous_substeps": (float(np.mean(self.hv_substeps)) if self.hv_substeps
                                            else 0.0),
             "wall_s": wall_s,
-            "threads": numba.get_num_threads(),  # of the kernels; the result does not depend on it
+            "threads": current_threads(),  # of the kernels; the result does not depend on it
             "prestretch": model.cornea_model.lambda0,
             "bending_rigidity_N_m": model.cornea_model.D,
             "R_ref_mm": model.cornea_model.R_ref * 1e3,

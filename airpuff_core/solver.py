@@ -24,8 +24,8 @@ def simulate(params: RunParams, progress=None, reuse: bool = True, threads=None)
     """Run one coupled simulation and return its histories, snapshots and metrics.
 
     ``progress(t_ms, t_end_ms)`` is called now and then.  ``reuse``: see ``CoupledModel``.
-    ``threads``: how many threads the kernels use (``threads.py``; default every core Numba
-    sees); the result does not depend on it.  Raises SimulationError on blow-up, non-convergent
+    ``threads``: how many threads the kernels use (``threads.py``; default Numba's setting, every
+    core it sees unless changed); the result does not depend on it.  Raises SimulationError on blow-up, non-convergent
     coupling or an ill-conditioned operator (the message names the time), ParameterError on a
     bad ``threads``.
     """

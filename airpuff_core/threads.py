@@ -1,10 +1,10 @@
 """How many threads one run's kernels use (docs/performance.md, "Threads").
 
 The MFPM build and the hyperviscous passes split their nodes into contiguous chunks that run in
-parallel (``kernels.mfpm.chunks``); a node's result never depends on the chunking, so a run gives
-the same numbers, bit for bit, with any number of threads.  A single run uses every core Numba
-sees (``NUMBA_NUM_THREADS``); a sweep's workers run one thread each (``sweep.cluster``), since
-the sweep already keeps every core busy with a point.
+parallel (``chunks``); a node's result never depends on the chunking, so a run gives the same
+numbers, bit for bit, with any number of threads.  A single run (``simulate``, ``airpuff run``)
+uses every core Numba sees (``NUMBA_NUM_THREADS``) unless told otherwise; a sweep's points run on
+one thread each (``sweep.worker``), since the sweep already keeps every core busy with a point.
 
 Threads pay only with an OpenMP or TBB threading layer: Numba's fallback ``workqueue`` layer
 made a paper-resolution run 3.4 times slower with two threads (measured), so without one of
@@ -15,11 +15,16 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import threading
 
 from .params import ParameterError
 
+CHUNKS_PER_THREAD = 4
+SERIAL_BELOW = 256  # nodes
+
 _FAST_LAYERS = {"omp": "numba.np.ufunc.omppool", "tbb": "numba.np.ufunc.tbbpool"}
 _layer_cache: dict[str, bool] = {}
+_state = threading.local()
 
 
 def _fast_layer_available() -> bool:
@@ -44,10 +49,30 @@ def _fast_layer_available() -> bool:
 
 def max_threads() -> int:
     """The most threads a run may use: Numba's ``NUMBA_NUM_THREADS`` (the cores, unless the
-    environment sets it), or 1 without a fast threading layer."""
+    environment sets it), or 1 without a fast threading layer.  Reads Numba's configuration
+    only: it does not start Numba's thread pool."""
     import numba
 
     return int(numba.config.NUMBA_NUM_THREADS) if _fast_layer_available() else 1
+
+
+def current_threads() -> int:
+    """The threads the kernels use now, in this (Python) thread: set by ``solver_threads``; 1
+    outside it."""
+    return getattr(_state, "threads", 1)
+
+
+def chunks(n_items: int) -> int:
+    """How many contiguous chunks a parallel kernel splits ``n_items`` nodes into: one with one
+    thread (the kernel's plain serial loop) or with fewer than SERIAL_BELOW nodes (waking the
+    other threads would cost more than they save: the cornea's nodes in the coupling),
+    otherwise CHUNKS_PER_THREAD per thread (node supports differ in size near walls).
+    Computed here, in Python: a compiled function that asks Numba for its thread count could
+    not be cached."""
+    threads = current_threads()
+    if threads == 1 or n_items < SERIAL_BELOW:
+        return 1
+    return min(n_items, CHUNKS_PER_THREAD * threads)
 
 
 def check_threads(threads) -> int:
@@ -69,14 +94,28 @@ def check_threads(threads) -> int:
 
 @contextlib.contextmanager
 def solver_threads(threads=None):
-    """Run the enclosed kernels on ``threads`` threads (``check_threads``), then restore Numba's
-    setting of the calling thread."""
-    value = check_threads(threads)
-    import numba
+    """Run the enclosed kernels on ``threads`` threads (``check_threads``; None: all), then
+    restore the setting of the calling thread.
 
-    before = numba.get_num_threads()
-    numba.set_num_threads(value)
+    One thread never starts Numba's thread pool.  That matters in a process that also starts a
+    Dask LocalCluster: the cluster's nannies set NUMBA_NUM_THREADS=1 in this process's
+    environment to start their workers, and Numba refuses to compile anything once the
+    environment disagrees with the size of a pool it has started (``sweep.cluster.make_client``
+    puts the variable back after the workers have started)."""
+    value = check_threads(threads)
+    before = current_threads()
+    _state.threads = value
+    pool_before = None
+    if value > 1:
+        import numba
+
+        pool_before = numba.get_num_threads()
+        numba.set_num_threads(value)
     try:
         yield value
     finally:
-        numba.set_num_threads(before)
+        _state.threads = before
+        if pool_before is not None:
+            import numba
+
+            numba.set_num_threads(pool_before)

@@ -1,7 +1,7 @@
 """Cost of the shell cornea against the membrane: one default run of each, interleaved (one core);
 the shell both rigid in transverse shear (Kirchhoff-Love) and shear-deformable (G_t 9.48 kPa).
 
-    python benchmarks/bench_shell.py [resolution] [--repeat N]
+    python benchmarks/bench_shell.py [resolution] [--repeat N] [--threads N (default 1)]
 
 The three runs alternate N times in this process (kernels compiled or loaded first), so that the
 machine's drift (20-30 % from minute to minute here) hits both alike; the fastest and the median
@@ -27,16 +27,16 @@ CORNEAS = {"membrane": {"cornea": "membrane"}, "shell": {"cornea": "shell"},
            "mindlin": {"cornea": "shell", "transverse_shear_modulus": 9.48}}
 
 
-def main(resolution="paper", repeat=3):
+def main(resolution="paper", repeat=3, threads=1):
     params = {c: RunParams(resolution=resolution, **options) for c, options in CORNEAS.items()}
     for p in params.values():
-        simulate(p.replace(t_end=0.05))  # compile or load the kernels
+        simulate(p.replace(t_end=0.05), threads=threads)  # compile or load the kernels
     walls = {c: [] for c in CORNEAS}
     last = {}
     for _ in range(repeat):
         for c in CORNEAS:
             t0 = time.perf_counter()
-            last[c] = simulate(params[c])
+            last[c] = simulate(params[c], threads=threads)
             walls[c].append(time.perf_counter() - t0)
     print(f"shell against membrane, {resolution} resolution, {repeat} interleaved pairs")
     for c in CORNEAS:
@@ -54,4 +54,4 @@ def main(resolution="paper", repeat=3):
 
 if __name__ == "__main__":
     args = parse_timing_args(__doc__, "paper", 3)
-    main(args.resolution, args.repeat)
+    main(args.resolution, args.repeat, 1 if args.threads is None else args.threads)

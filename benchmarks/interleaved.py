@@ -1,7 +1,7 @@
 """Before/after timings in one process, alternating: another commit's solver against this tree's.
 
-    python benchmarks/interleaved.py REF run [coarse|paper|fine] [--repeat N]
-    python benchmarks/interleaved.py REF mfpm [--rounds N]
+    python benchmarks/interleaved.py REF run [coarse|paper|fine] [--repeat N] [--threads N]
+    python benchmarks/interleaved.py REF mfpm [--rounds N] [--threads N]
 
 REF is a git revision (``main``, a commit); its ``airpuff_core`` is exported with ``git archive``
 into a temporary directory under another package name, so both solvers live in this process and
@@ -10,6 +10,8 @@ speed changes from minute to minute (docs/performance.md), so only figures taken
 minutes compare; the per-pair ratios new/old are printed with the metrics of each run.  Both
 the wall time and the process's CPU time are measured: on a machine shared with other work, the
 CPU time leaves out the time the process waited for a core (not the slower caches).
+``--threads`` (default 1) sets the threads of this tree's kernels (``airpuff_core/threads.py``);
+a revision from before them runs on one thread whatever it says.
 """
 
 from __future__ import annotations
@@ -102,8 +104,12 @@ def main(argv=None):
     ap.add_argument("resolution", nargs="?", default="paper", choices=("coarse", "paper", "fine"))
     ap.add_argument("--repeat", type=int, default=2, help="runs of each (default 2)")
     ap.add_argument("--rounds", type=int, default=21, help="MFPM rounds of each (default 21)")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="threads of this tree's kernels (default 1)")
     args = ap.parse_args(argv)
-    with tempfile.TemporaryDirectory() as tmp:
+    from airpuff_core.threads import solver_threads
+
+    with tempfile.TemporaryDirectory() as tmp, solver_threads(args.threads):
         old = import_revision(args.ref, Path(tmp))
         importlib.import_module("airpuff_ref.fluid")
         if args.what == "run":

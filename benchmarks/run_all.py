@@ -1,8 +1,12 @@
-"""`make bench`: every benchmark figure of docs/performance.md, printed (about 14 minutes).
+"""`make bench`: every benchmark figure of docs/performance.md, printed (about 16 minutes).
+
+The default runs are timed on one thread (the figure of one core) and on every thread Numba has
+(what `airpuff run` uses); the fine run, the shell's cost and the cost against resolution as
+their docstrings say.
 
     python benchmarks/run_all.py            # all
-    python benchmarks/run_all.py --quick    # skip the paper-resolution runs, the sweep and the
-                                            # cost against resolution (a fine run)
+    python benchmarks/run_all.py --quick    # skip the paper- and fine-resolution runs, the sweep
+                                            # and the cost against resolution
 
 Timings on this machine vary by 20-30 % from minute to minute, so the runs are repeated and the
 fastest and median are printed.
@@ -23,9 +27,12 @@ def main(argv):
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
     bench_compile.main()
     bench_mfpm.main()
+    run_default.main("coarse", repeat=3, threads=1)
     run_default.main("coarse", repeat=3)
     if not quick:
+        run_default.main("paper", repeat=3, threads=1)
         run_default.main("paper", repeat=3)
+        run_default.main("fine", repeat=1)
         bench_shell.main("paper", repeat=3)
         bench_sweep.main(["--repeat", "2"])
         scaling.main([])

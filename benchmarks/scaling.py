@@ -1,6 +1,6 @@
 """How the cost of a default run grows with the number of fluid nodes (one core):
 
-    python benchmarks/scaling.py [--repeat N] [--levels coarse,paper,fine]
+    python benchmarks/scaling.py [--repeat N] [--levels coarse,paper,fine] [--threads N]
 
 Each resolution's default run is timed (fastest of N, in this process, the kernels compiled or
 loaded before; the process's CPU time, which leaves out the time it waited for a core on a
@@ -10,7 +10,8 @@ CPU time against log n over the levels, and split into its two factors: steps (t
 step shrinks with the smallest spacing, h ~ n^-1/2) and the CPU time per step (the work per
 step is proportional to n, times the hyperviscosity's operator applications per step, which
 the fit reports too: in principle gamma c h^5 |L^3| dt ~ cfl gamma does not depend on h; in
-practice it grows slowly as nodes bunch).  About 3 minutes on a quiet machine.
+practice it grows slowly as nodes bunch).  One thread unless ``--threads`` says otherwise (then
+the CPU time sums the threads).  About 2 minutes on a quiet machine.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=1, help="runs per resolution (fastest kept)")
     ap.add_argument("--levels", default="coarse,paper,fine",
                     help="comma-separated resolutions, at least two")
+    ap.add_argument("--threads", type=int, default=1, help="threads of the kernels (default 1)")
     args = ap.parse_args(argv)
     levels = args.levels.split(",")
     if len(levels) < 2:
@@ -40,18 +42,18 @@ def main(argv=None):
     rows = []
     for level in levels:
         params = RunParams(resolution=level)
-        simulate(params.replace(t_end=0.05))  # compile or load the kernels
+        simulate(params.replace(t_end=0.05), threads=args.threads)  # compile or load
         walls, cpus = [], []
         for _ in range(args.repeat):
             t0, c0 = time.perf_counter(), time.process_time()
-            result = simulate(params)
+            result = simulate(params, threads=args.threads)
             walls.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)
         d = result.diagnostics
         cpu = min(cpus)
         rows.append((level, d["n_fluid"], cpu, d["steps"],
                      d["mean_hyperviscous_substeps"], d["mean_coupling_iterations"]))
-        print(f"{level:7s} {d['n_fluid']:6d} nodes  CPU {cpu:7.2f} s, wall {min(walls):7.2f} s "
+        print(f"{level:7s} {d['n_fluid']:6d} nodes, {d['threads']} thread(s)  CPU {cpu:7.2f} s, wall {min(walls):7.2f} s "
               f"(fastest of {args.repeat})  {d['steps']:6d} steps  {cpu / d['steps'] * 1e3:6.3f} "
               f"ms/step  {cpu / d['steps'] / d['n_fluid'] * 1e6:6.3f} us/(step node)  "
               f"HV applications/step {d['mean_hyperviscous_substeps']:.2f}  DN iterations/step "

@@ -75,8 +75,17 @@ def make_client(workers: int = 2, scheduler: str | None = None, **cluster_kwargs
     # early in a worker (through distributed), reads NUMBA_NUM_THREADS=1 too
     spawn_env = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **WORKER_THREAD_ENV}
     config = {**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": spawn_env}
+    parent_env = {name: os.environ.get(name) for name in WORKER_THREAD_ENV}
     with dask.config.set(config):  # read by each server and nanny as it is made
         cluster = LocalCluster(**kwargs)
+    # a nanny applies its pre-spawn environment to this process too, for good: put it back, or
+    # Numba here refuses to compile once it has started a thread pool of another size
+    # (airpuff_core/threads.py; a nanny that restarts a worker sets it again)
+    for name, value in parent_env.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
     try:
         return Client(cluster)
     except BaseException:

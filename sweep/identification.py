@@ -434,7 +434,8 @@ def solver_metrics(params: Mapping[str, Any]) -> dict[str, float]:
     from airpuff_core import simulate
     from airpuff_core.params import RunParams
 
-    return {k: float(v) for k, v in simulate(RunParams.from_dict(dict(params))).metrics.items()}
+    result = simulate(RunParams.from_dict(dict(params)), threads=1)  # one per sweep worker
+    return {k: float(v) for k, v in result.metrics.items()}
 
 
 def _solver_metrics(options: dict, thickness: float, pmax: float) -> Callable[[float, float], dict]:

@@ -112,7 +112,7 @@ def warm_numba_cache(params=None, fallback=None) -> float:
     t0 = time.perf_counter()
     for tiny in warmup_params(params, fallback):
         try:
-            simulate(tiny)
+            simulate(tiny, threads=1)  # compiles every kernel; starts no thread pool here
             break
         except Exception as err:  # noqa: BLE001 - the point of the call is the compilation
             log.warning("Numba warm-up run failed (kernels compiled so far stay cached): %s", err)

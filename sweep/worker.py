@@ -115,7 +115,7 @@ def _simulate_point(params: RunParams, key: str, store_ok, store_failed) -> dict
     try:
         from airpuff_core import simulate
 
-        result = simulate(params)
+        result = simulate(params, threads=1)  # the sweep keeps every core busy with a point
         ds = result.to_dataset()
         wall = time.perf_counter() - t0
         ds.attrs["sweep_point_key"] = key

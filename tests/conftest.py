@@ -10,6 +10,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
+# The tests' own runs use one thread: this process also starts LocalClusters, whose nannies set
+# NUMBA_NUM_THREADS=1 here whenever they (re)start a worker, and Numba refuses to compile once
+# that disagrees with a thread pool it has started (airpuff_core/threads.py).  The runs on
+# several threads are tested in a subprocess of their own (tests/test_threads.py).
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 
 def airpuff_argv(*args) -> list[str]:

@@ -26,24 +26,10 @@ semi-definite in the A-weighted inner product: its powers damp and never amplify
 """
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit, prange
 
 # reassociation and fused multiply-adds only, so that NaN and infinity keep their meaning
 MFPM_FASTMATH = {"reassoc", "contract", "nsz"}
-CHUNKS_PER_THREAD = 4  # contiguous node ranges per thread: supports differ in size near walls
-SERIAL_BELOW = 256  # fewer nodes (the cornea's, in the coupling) are built by one thread: waking
-# the others costs more than they would save
-
-
-def chunks(n_items):
-    """How many contiguous chunks a parallel loop over ``n_items`` items takes: a few per thread
-    of ``numba.get_num_threads()`` (one with one thread, so that a serial run is the plain
-    loop), at most one per item.  Called from Python: a compiled function that asks for the
-    thread count could not be cached."""
-    threads = get_num_threads()
-    if threads == 1 or n_items < SERIAL_BELOW:
-        return 1
-    return min(n_items, CHUNKS_PER_THREAD * threads)
 
 
 @njit(cache=True)
@@ -186,7 +172,7 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     first moment of the Brookshaw weights (zero on a full symmetric support, not at a wall) and
     g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).
 
-    The nodes are built in ``n_chunks`` contiguous chunks (``chunks``: one or a few per
+    The nodes are built in ``n_chunks`` contiguous chunks (``threads.chunks``: one or a few per
     thread), in parallel; a node's results depend on its own support only, so they are the
     same, bit for bit, for any number of threads or chunks.
 
@@ -490,7 +476,7 @@ def pair_flow(rho, vx, vy, start, nbr, sign, count, coef, n_chunks, out_rho, out
     each field's sum is the one ``brookshaw_laplacian`` forms.  Multiplying by the sign, not
     branching on ``mirrored``, and one coefficient array make the pass about 1.5 times faster
     (measured).  Each node's sums are its own, so the ``n_chunks`` contiguous chunks of nodes
-    (``chunks``) run in parallel and give the same result for any number."""
+    (``threads.chunks``) run in parallel and give the same result for any number."""
     n = rho.shape[0]
     if n_chunks <= 1:
         _pair_flow_rows(0, n, rho, vx, vy, start, nbr, sign, count, coef, out_rho, out_vx, out_vy)
