@@ -1,5 +1,5 @@
-"""Threads (airpuff_core/threads.py): the kernels split their nodes into chunks that run in
-parallel, and a run's numbers must not depend on how many threads or chunks there are.  The
+"""Threads (airpuff_core/threads.py): the hyperviscous passes split their nodes into chunks that
+run in parallel, and a run's numbers must not depend on how many threads or chunks there are.  The
 fused hyperviscous operator is checked against the single-field reference kernels
 (``hyperviscous_term``: one field, one pass per operator factor, the adjoint by its own scatter),
 which share no code with it."""
@@ -13,9 +13,8 @@ import pytest
 
 from airpuff_core import ParameterError, RunParams
 from airpuff_core.coupling import CoupledModel
-from airpuff_core.fluid import COND_MAX
 from airpuff_core.kernels.mfpm import (flow_operator_work, hyperviscous_flow_operator,
-                                       hyperviscous_term, mfpm_derivatives)
+                                       hyperviscous_term)
 from airpuff_core.threads import check_threads
 
 OPERATORS = ("brookshaw", "consistent_velocity", "consistent")
@@ -60,38 +59,6 @@ def test_flow_operator_does_not_depend_on_the_chunks(model, n_chunks):
     rng = np.random.default_rng(2)
     fields = rng.standard_normal((3, model.x.size))
     assert np.array_equal(_flow(model, fields, 1), _flow(model, fields, n_chunks))
-
-
-@pytest.mark.parametrize("n_chunks", [2, 5])
-def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
-    """Every output of the build (derivatives, condition numbers, the Brookshaw and consistent
-    pair lists) is the same, bit for bit, with one chunk or several."""
-    model = CoupledModel(RunParams(resolution="coarse"))
-    ops = model.ops_n
-    n = model.x.size
-    rng = np.random.default_rng(3)
-    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.kind == 0)
-    fields = rng.standard_normal((3, n))
-    parity = np.array([1.0, -1.0, 1.0])
-    ops.table.update(x, model.y)
-    t = ops.table
-
-    def build(chunks):
-        out = np.zeros((3, n, 5))
-        arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
-                  np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
-                  np.zeros_like(ops.lap_c)]
-        status = mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
-                                  t.nbr, t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out,
-                                  *arrays, True, True, chunks)
-        return status, out, arrays
-
-    status1, out1, arrays1 = build(1)
-    status2, out2, arrays2 = build(n_chunks)
-    assert status1 == status2 == 0
-    assert np.array_equal(out1, out2)
-    for a, b in zip(arrays1, arrays2):
-        assert np.array_equal(a, b)
 
 
 RUN_ON_ONE_AND_TWO_THREADS = """

@@ -28,9 +28,6 @@ semi-definite in the A-weighted inner product: its powers damp and never amplify
 import numpy as np
 from numba import njit, prange
 
-# reassociation and fused multiply-adds only, so that NaN and infinity keep their meaning
-MFPM_FASTMATH = {"reassoc", "contract", "nsz"}
-
 
 @njit(cache=True)
 def chunk_bounds(n_items, n_chunks, c):
@@ -128,10 +125,10 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
 LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H^4
 
 
-@njit(cache=True, parallel=True, fastmath=MFPM_FASTMATH)
+@njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
                      cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c,
-                     store_laplacian, store_consistent, n_chunks):
+                     store_laplacian, store_consistent):
     """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
     to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
     or only (f_x, f_y) when ``out`` has two columns.
@@ -172,12 +169,10 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     first moment of the Brookshaw weights (zero on a full symmetric support, not at a wall) and
     g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).
 
-    The nodes are built in ``n_chunks`` contiguous chunks (``threads.chunks``: one or a few per
-    thread), in parallel; a node's results depend on its own support only, so they are the
-    same, bit for bit, for any number of threads or chunks.
-
     Returns 0, or i+1 for the first node whose matrix is singular or worse than ``cond_max``.
     """
+    n_fields = fields.shape[0]
+    n_rows = out.shape[2]  # 5, or 2 for the gradient only
     n = x.shape[0]
     node = np.empty((n, 4))
     for i in range(n):
@@ -185,31 +180,6 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
         node[i, 1] = y[i]
         node[i, 2] = h[i]
         node[i, 3] = inv_h[i]
-    n_chunks = max(1, min(n_chunks, nodes.shape[0]))
-    if n_chunks == 1:
-        return _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
-                            cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b,
-                            lap_c, store_laplacian, store_consistent)
-    status = np.zeros(n_chunks, np.int64)
-    for c in prange(n_chunks):
-        lo, hi = chunk_bounds(nodes.shape[0], n_chunks, c)
-        status[c] = _build_nodes(nodes[lo:hi], node, area, kappa, start, nbr, mirrored, fields,
-                                 parity, cond_max, out, cond, lap_count, lap_nbr, lap_mirrored,
-                                 lap_sign, lap_b, lap_c, store_laplacian, store_consistent)
-    for c in range(n_chunks):  # the first failing node in the order of ``nodes``
-        if status[c]:
-            return status[c]
-    return 0
-
-
-@njit(cache=True, fastmath=MFPM_FASTMATH)
-def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity, cond_max, out,
-                 cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c, store_laplacian,
-                 store_consistent):
-    """The loop of ``mfpm_derivatives`` over ``nodes``, one after the other, with its own
-    scratch rows; ``node`` holds each node's (x, y, h, 1/h) side by side."""
-    n_fields = fields.shape[0]
-    n_rows = out.shape[2]  # 5, or 2 for the gradient only
     width = 1
     for i in nodes:
         width = max(width, start[i + 1] - start[i])
@@ -226,10 +196,10 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
     inv_kappa = 1.0 / kappa
     status = 0
     for i in nodes:
-        xi = node[i, 0]
-        yi = node[i, 1]
-        hi = node[i, 2]
-        inv_hi = node[i, 3]
+        xi = x[i]
+        yi = y[i]
+        hi = h[i]
+        inv_hi = inv_h[i]
         inv_s = inv_kappa * inv_hi
         p0 = start[i]
         n_cand = start[i + 1] - p0
