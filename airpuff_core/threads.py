@@ -1,8 +1,18 @@
 """How many threads one run's kernels use (docs/performance.md, "Threads").
 
-The MFPM build and the hyperviscous passes split their nodes into contiguous chunks that run in
-parallel (``chunks``); a node's result never depends on the chunking, so a run gives the same
-numbers, bit for bit, with any number of threads.  A single run (``simulate``, ``airpuff run``)
+The hyperviscous passes (``kernels/mfpm.py``: ``pair_flow``, ``pair_flow_split``,
+``adjoint_flow``) split their nodes into contiguous chunks that run in Numba's parallel loops
+(``chunks``).  A node's result never depends on the chunking, and the adjoint's sums are added
+in a fixed order, so a run gives the same numbers, bit for bit, with any number of threads.
+
+The MFPM build stays on one thread.  Its reductions are vectorised under reassociation, and
+every copy of it compiled inside a parallel loop (or called from another compiled function)
+rounded differently in the last bit from the serial kernel, and differently again between a
+fresh compile and the cached one (measured: a sweep point in a Dask worker then differed from the
+same run in its client).  Without reassociation the build was deterministic in parallel, but
+2.1 instead of 3.0 M particle-evaluations per second on one core, which would slow every sweep;
+built on Python threads (the kernel releasing the GIL), the calls' overhead ate the gain (paper
+run 8.2 s on 2 threads against 7.6 s).  A single run (``simulate``, ``airpuff run``)
 uses every core Numba sees (``NUMBA_NUM_THREADS``) unless told otherwise; a sweep's points run on
 one thread each (``sweep.worker``), since the sweep already keeps every core busy with a point.
 
@@ -95,13 +105,17 @@ def check_threads(threads) -> int:
 @contextlib.contextmanager
 def solver_threads(threads=None):
     """Run the enclosed kernels on ``threads`` threads (``check_threads``; None: all), then
-    restore the setting of the calling thread.
+    restore the setting of the calling thread (airpuff's and Numba's).
 
-    One thread never starts Numba's thread pool.  That matters in a process that also starts a
-    Dask LocalCluster: the cluster's nannies set NUMBA_NUM_THREADS=1 in this process's
-    environment to start their workers, and Numba refuses to compile anything once the
-    environment disagrees with the size of a pool it has started (``sweep.cluster.make_client``
-    puts the variable back after the workers have started)."""
+    With one thread nothing parallel runs and Numba's thread pool is never started.  That
+    matters in a process that also starts a Dask LocalCluster (a sweep's client, which solves
+    tiny warm-up runs on one thread): the cluster's nannies set NUMBA_NUM_THREADS=1 in this
+    process's environment to start their workers, and Numba refuses to compile anything once
+    the environment disagrees with the size of a pool it has started.  ``airpuff sweep``,
+    ``serve`` and ``identify`` and ``sweep.demo`` therefore set NUMBA_NUM_THREADS=1 first
+    (``sweep.cluster.pin_numba_threads_for_cluster_host``), and ``sweep.cluster.make_client``
+    puts the variable back after its workers have started, which covers a script that ran a
+    multi-threaded run first (until a nanny restarts a worker)."""
     value = check_threads(threads)
     before = current_threads()
     _state.threads = value

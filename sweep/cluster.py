@@ -14,6 +14,7 @@ Numba's set-up, loading the kernels) before they get points.
 from __future__ import annotations
 
 import os
+import sys
 import time
 import uuid
 
@@ -38,6 +39,24 @@ WORKER_THREAD_ENV = {
 # core during a sweep, 3.6 % at 500 ms (measured, 1 worker); with as many workers as cores that
 # CPU is taken from the workers.
 LOCAL_CLUSTER_CONFIG = {"distributed.admin.tick.interval": "500ms"}
+
+
+def pin_numba_threads_for_cluster_host() -> None:
+    """Keep this process's Numba thread pool to one thread: call it first thing in a process
+    that starts LocalClusters (``airpuff sweep``, ``serve``, ``identify``, ``sweep.demo``).
+    Such a process solves only tiny warm-up runs, but those start Numba's pool (the MFPM build
+    runs in a parallel loop), and a nanny that starts a worker sets NUMBA_NUM_THREADS=1 in this
+    process's environment, after which Numba refuses to compile if its pool has another size
+    (airpuff_core/threads.py).  Does nothing once Numba's pool is running."""
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        from numba.np.ufunc import parallel
+
+        if parallel._is_initialized:
+            return
+    os.environ["NUMBA_NUM_THREADS"] = "1"
+    if numba is not None:
+        numba.config.reload_config()
 
 
 def worker_env() -> dict[str, str]:

@@ -36,7 +36,9 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="demo_out", metavar="DIR", help="output folder (default demo_out)")
     parser.add_argument("--workers", type=int, default=2, metavar="N", help="local worker processes (default 2)")
     args = parser.parse_args(argv)
+    from .cluster import close_client, make_client, pin_numba_threads_for_cluster_host
 
+    pin_numba_threads_for_cluster_host()
     import xarray as xr
 
     from .plots import plot_metrics_vs_iop
@@ -44,8 +46,6 @@ def main(argv=None) -> int:
     from .runner import run_sweep
 
     from pathlib import Path
-
-    from .cluster import close_client, make_client
 
     specs = {model: demo_spec(model) for model in DEMO_MODELS}
     n_points = sum(spec.n_points for spec in specs.values())

@@ -1,5 +1,8 @@
 """Threads (airpuff_core/threads.py): the hyperviscous passes split their nodes into chunks that
-run in parallel, and a run's numbers must not depend on how many threads or chunks there are.  The
+run in parallel, and a run's numbers must not depend on how many threads or chunks there are,
+nor on the process (tests/test_sweep_dask.py compares a Dask worker's run with the same run
+here).  The MFPM build, whose reductions are reassociated, must give the same bits for any
+subset of nodes it is asked for and wherever its arrays lie in memory.  The
 fused hyperviscous operator is checked against the single-field reference kernels
 (``hyperviscous_term``: one field, one pass per operator factor, the adjoint by its own scatter),
 which share no code with it."""
@@ -13,8 +16,9 @@ import pytest
 
 from airpuff_core import ParameterError, RunParams
 from airpuff_core.coupling import CoupledModel
+from airpuff_core.fluid import COND_MAX
 from airpuff_core.kernels.mfpm import (flow_operator_work, hyperviscous_flow_operator,
-                                       hyperviscous_term)
+                                       hyperviscous_term, mfpm_derivatives)
 from airpuff_core.threads import check_threads
 
 OPERATORS = ("brookshaw", "consistent_velocity", "consistent")
@@ -59,6 +63,70 @@ def test_flow_operator_does_not_depend_on_the_chunks(model, n_chunks):
     rng = np.random.default_rng(2)
     fields = rng.standard_normal((3, model.x.size))
     assert np.array_equal(_flow(model, fields, 1), _flow(model, fields, n_chunks))
+
+
+@pytest.mark.parametrize("n_chunks", [2, 5])
+def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
+    """Every output of the build (derivatives, condition numbers, the Brookshaw and consistent
+    pair lists) is the same, bit for bit, with one chunk or several."""
+    model = CoupledModel(RunParams(resolution="coarse"))
+    ops = model.ops_n
+    n = model.x.size
+    rng = np.random.default_rng(3)
+    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.kind == 0)
+    fields = rng.standard_normal((3, n))
+    parity = np.array([1.0, -1.0, 1.0])
+    ops.table.update(x, model.y)
+    t = ops.table
+
+    def build(chunks):
+        """One kernel call per contiguous chunk of the nodes, one after the other."""
+        out = np.zeros((3, n, 5))
+        arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
+                  np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
+                  np.zeros_like(ops.lap_c)]
+        status = 0
+        for part in np.array_split(ops.all_nodes, chunks):
+            status = status or mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area,
+                                                ops.kappa, t.start, t.nbr, t.mirrored, part,
+                                                fields, parity, COND_MAX, out, *arrays, True,
+                                                True)
+        return status, out, arrays
+
+    status1, out1, arrays1 = build(1)
+    status2, out2, arrays2 = build(n_chunks)
+    assert status1 == status2 == 0
+    assert np.array_equal(out1, out2)
+    for a, b in zip(arrays1, arrays2):
+        assert np.array_equal(a, b)
+
+
+def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
+    """The build's reductions are vectorised under reassociation: the result must not depend on
+    the memory addresses of the arrays (which differ between processes, e.g. a Dask worker and
+    its client).  Twenty builds, each after an allocation that shifts the heap, in 1-3 chunks,
+    give the same consistent-Laplacian coefficients and derivatives bit for bit."""
+    model = CoupledModel(RunParams(resolution="coarse"))
+    ops, t = model.ops_n, model.ops_n.table
+    n = model.x.size
+    fields = np.stack([np.sin(300 * model.x), np.cos(200 * model.y)])
+    parity = np.array([-1.0, 1.0])
+    first = None
+    shifts = []
+    for trial in range(20):
+        shifts.append(np.empty(17 + 1000 * trial))  # moves the next allocations
+        out = np.zeros((2, n, 5))
+        lap_c = np.zeros_like(ops.lap_c)
+        arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
+                  np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
+                  lap_c]
+        for part in np.array_split(ops.all_nodes, 1 + trial % 3):
+            mfpm_derivatives(model.x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
+                             t.nbr, t.mirrored, part, fields, parity, COND_MAX, out, *arrays,
+                             True, True)
+        if first is None:
+            first = (out, lap_c)
+        assert np.array_equal(out, first[0]) and np.array_equal(lap_c, first[1]), trial
 
 
 RUN_ON_ONE_AND_TWO_THREADS = """

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from .common import OneLineParser
 from .identify import add_identify_parser
-from .run import add_plot_parser, add_run_parser
+from .run import add_plot_parser, add_run_parser, plot_command, run_command
 from .serve import add_serve_parser
 from .sweep import add_sweep_parser
 
@@ -36,4 +36,8 @@ def build_parser() -> OneLineParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.func not in (run_command, plot_command):  # these start LocalClusters
+        from sweep.cluster import pin_numba_threads_for_cluster_host
+
+        pin_numba_threads_for_cluster_host()
     return int(args.func(args) or 0)
