@@ -1,5 +1,4 @@
-"""MFPM operator throughput on one core, in particle-evaluations per CPU second (one thread;
-then the wall-clock rate with every thread Numba has, the build's chunks in parallel).
+"""MFPM operator throughput on one core, in particle-evaluations per CPU second.
 
 One particle-evaluation = the operator at one node built from the current positions (its support
 found, its moment matrix assembled and inverted, its condition number checked), then the full
@@ -21,7 +20,7 @@ import numpy as np
 
 from airpuff_core.fluid import KAPPA, Operators
 from airpuff_core.geometry import build_chamber
-from airpuff_core.threads import max_threads, solver_threads
+from airpuff_core.threads import solver_threads
 
 
 def interleaved(rounds, repeats, fns):
@@ -53,30 +52,8 @@ def moving_clouds(resolution):
 
 
 def main(resolution="paper", repeats=40, rounds=15):
-    with solver_threads(1):
-        rate = one_core(resolution, repeats, rounds)
-    threads = max_threads()
-    if threads > 1:
-        with solver_threads(threads):
-            all_threads(resolution, repeats, rounds, threads)
-    return rate
-
-
-def all_threads(resolution, repeats, rounds, threads):
-    """The build + derivatives of 4 fields on ``threads`` threads, per wall-clock second."""
-    ch, clouds, fields, parity = moving_clouds(resolution)
-    out = np.empty((4, ch.n, 5))
-    ops = Operators(ch.h, ch.area, KAPPA)
-    ops.derivatives(*clouds[0], fields, parity, out)
-    times = []
-    for _ in range(rounds):
-        t0 = time.perf_counter()
-        for k in range(repeats):
-            ops.derivatives(*clouds[k % 8], fields, parity, out)
-        times.append((time.perf_counter() - t0) / repeats)
-    times.sort()
-    print(f"  on {threads} threads: {ch.n / times[0] / 1e6:.2f} M particle-evaluations per "
-          f"wall-clock second fastest, {ch.n / times[rounds // 2] / 1e6:.2f} median")
+    with solver_threads(1):  # the build is serial (docs/performance.md, "Threads")
+        return one_core(resolution, repeats, rounds)
 
 
 def one_core(resolution, repeats, rounds):

@@ -46,16 +46,18 @@ def import_revision(ref: str, into: Path):
     return importlib.import_module("airpuff_ref")
 
 
-def compare_runs(old, resolution, repeat):
+def compare_runs(old, resolution, repeat, threads=1):
     import airpuff_core as new
     walls = {"old": [], "new": []}
     cpus = {"old": [], "new": []}
+    # this tree's runs on ``threads`` threads; an older revision's on one, whatever it says
+    options = {old: {}, new: {"threads": threads}}
     for pkg in (old, new):
-        pkg.simulate(pkg.RunParams(resolution=resolution, t_end=0.05))  # compile or load
+        pkg.simulate(pkg.RunParams(resolution=resolution, t_end=0.05), **options[pkg])
     for _ in range(repeat):
         for name, pkg in (("old", old), ("new", new)):
             t0, c0 = time.perf_counter(), time.process_time()
-            r = pkg.simulate(pkg.RunParams(resolution=resolution))
+            r = pkg.simulate(pkg.RunParams(resolution=resolution), **options[pkg])
             walls[name].append(time.perf_counter() - t0)
             cpus[name].append(time.process_time() - c0)
             d = r.diagnostics
@@ -109,11 +111,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     from airpuff_core.threads import solver_threads
 
-    with tempfile.TemporaryDirectory() as tmp, solver_threads(args.threads):
+    with tempfile.TemporaryDirectory() as tmp, solver_threads(args.threads):  # the MFPM rounds
         old = import_revision(args.ref, Path(tmp))
         importlib.import_module("airpuff_ref.fluid")
         if args.what == "run":
-            compare_runs(old, args.resolution, args.repeat)
+            compare_runs(old, args.resolution, args.repeat, args.threads)
         else:
             compare_mfpm(old, args.rounds)
 
