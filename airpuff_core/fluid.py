@@ -16,6 +16,7 @@ from .errors import SimulationError
 from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
 from .kernels.neighbours import build_neighbours, max_squared_move
 from .kernels.nodes import axis_halved_area
+from .threads import chunks
 
 KAPPA = 2.7  # MFPM support radius / local spacing (>= 2.2 keeps wall stencils well conditioned)
 MAX_NEIGHBOURS = 128
@@ -151,7 +152,8 @@ class Operators:
         status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
                                   t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
                                   self.count, self.nbr, self.mirrored, self.sign, self.lap_b,
-                                  self.lap_c, laplacian, laplacian and self.consistent)
+                                  self.lap_c, laplacian, laplacian and self.consistent,
+                                  chunks(nodes.shape[0]))
         if laplacian:
             self.has_laplacian = True
             axis_halved_area(x, self.area, self.adjoint_weight)

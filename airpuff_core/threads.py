@@ -1,24 +1,19 @@
 """How many threads one run's kernels use (docs/performance.md, "Threads").
 
-The hyperviscous passes (``kernels/mfpm.py``: ``pair_flow``, ``pair_flow_split``,
-``adjoint_flow``) split their nodes into contiguous chunks that run in Numba's parallel loops
-(``chunks``).  A node's result never depends on the chunking, and the adjoint's sums are added
-in a fixed order, so a run gives the same numbers, bit for bit, with any number of threads.
-
-The MFPM build stays on one thread.  Its reductions are vectorised under reassociation, and
-every copy of it compiled inside a parallel loop (or called from another compiled function)
-rounded differently in the last bit from the serial kernel, and differently again between a
-fresh compile and the cached one (measured: a sweep point in a Dask worker then differed from the
-same run in its client).  Without reassociation the build was deterministic in parallel, but
-2.1 instead of 3.0 M particle-evaluations per second on one core, which would slow every sweep;
-built on Python threads (the kernel releasing the GIL), the calls' overhead ate the gain (paper
-run 8.2 s on 2 threads against 7.6 s).  A single run (``simulate``, ``airpuff run``)
-uses every core Numba sees (``NUMBA_NUM_THREADS``) unless told otherwise; a sweep's points run on
-one thread each (``sweep.worker``), since the sweep already keeps every core busy with a point.
+The MFPM build (``kernels/mfpm.mfpm_derivatives``) and the hyperviscous passes (``pair_flow``,
+``pair_flow_split``, ``adjoint_flow``) split their nodes into contiguous chunks that run in
+Numba's parallel loops (``chunks``).  A node's result never depends on the chunking, the
+adjoint's sums are added in a fixed order, and the build's arithmetic is strict IEEE, so a run
+gives the same numbers, bit for bit, with any number of threads, in any process.  A single run
+(``simulate``, ``airpuff run``) uses every core Numba sees (``NUMBA_NUM_THREADS``) unless told
+otherwise; a sweep's points run on one thread each (``sweep.worker``), since the sweep already
+keeps every core busy with a point.
 
 Threads pay only with an OpenMP or TBB threading layer: Numba's fallback ``workqueue`` layer
 made a paper-resolution run 3.4 times slower with two threads (measured), so without one of
-those layers a run keeps to one thread.
+those layers a run keeps to one thread.  Even on one thread the kernels ran about twice as slow
+under ``workqueue`` (a coarse run 3.5-3.7 s against 1.6-1.7 s, measured): the OpenMP layer needs
+libgomp (``libgomp1``), which the Docker image installs.
 """
 
 from __future__ import annotations
@@ -107,15 +102,16 @@ def solver_threads(threads=None):
     """Run the enclosed kernels on ``threads`` threads (``check_threads``; None: all), then
     restore the setting of the calling thread (airpuff's and Numba's).
 
-    With one thread nothing parallel runs and Numba's thread pool is never started.  That
-    matters in a process that also starts a Dask LocalCluster (a sweep's client, which solves
-    tiny warm-up runs on one thread): the cluster's nannies set NUMBA_NUM_THREADS=1 in this
-    process's environment to start their workers, and Numba refuses to compile anything once
-    the environment disagrees with the size of a pool it has started.  ``airpuff sweep``,
-    ``serve`` and ``identify`` and ``sweep.demo`` therefore set NUMBA_NUM_THREADS=1 first
-    (``sweep.cluster.pin_numba_threads_for_cluster_host``), and ``sweep.cluster.make_client``
-    puts the variable back after its workers have started, which covers a script that ran a
-    multi-threaded run first (until a nanny restarts a worker)."""
+    With one thread the kernels take their serial branches, but Numba starts its thread pool
+    (NUMBA_NUM_THREADS threads) as soon as it loads a kernel with a parallel loop, whatever the
+    thread count.  That matters in a process that also starts a Dask LocalCluster (a sweep's
+    client, which solves tiny warm-up runs): the cluster's nannies set
+    NUMBA_NUM_THREADS=1 in this process's environment to start their workers, and Numba refuses
+    to compile anything once the environment disagrees with the size of a pool it has started.
+    ``airpuff sweep``, ``serve`` and ``identify`` and ``sweep.demo`` therefore set
+    NUMBA_NUM_THREADS=1 first (``sweep.cluster.pin_numba_threads_for_cluster_host``), and
+    ``sweep.cluster.make_client`` puts the variable back after its workers have started, which
+    covers a script that ran a multi-threaded run first (until a nanny restarts a worker)."""
     value = check_threads(threads)
     before = current_threads()
     _state.threads = value

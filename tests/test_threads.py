@@ -1,8 +1,7 @@
-"""Threads (airpuff_core/threads.py): the hyperviscous passes split their nodes into chunks that
-run in parallel, and a run's numbers must not depend on how many threads or chunks there are,
-nor on the process (tests/test_sweep_dask.py compares a Dask worker's run with the same run
-here).  The MFPM build, whose reductions are reassociated, must give the same bits for any
-subset of nodes it is asked for and wherever its arrays lie in memory.  The
+"""Threads (airpuff_core/threads.py): the MFPM build and the hyperviscous passes split their nodes
+into chunks that run in parallel, and a run's numbers must not depend on how many threads or
+chunks there are, nor on where the arrays lie in memory, nor on the process
+(tests/test_sweep_dask.py compares a Dask worker's run with the same run here).  The
 fused hyperviscous operator is checked against the single-field reference kernels
 (``hyperviscous_term``: one field, one pass per operator factor, the adjoint by its own scatter),
 which share no code with it."""
@@ -80,17 +79,13 @@ def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
     t = ops.table
 
     def build(chunks):
-        """One kernel call per contiguous chunk of the nodes, one after the other."""
         out = np.zeros((3, n, 5))
         arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
                   np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
                   np.zeros_like(ops.lap_c)]
-        status = 0
-        for part in np.array_split(ops.all_nodes, chunks):
-            status = status or mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area,
-                                                ops.kappa, t.start, t.nbr, t.mirrored, part,
-                                                fields, parity, COND_MAX, out, *arrays, True,
-                                                True)
+        status = mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
+                                  t.nbr, t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out,
+                                  *arrays, True, True, chunks)
         return status, out, arrays
 
     status1, out1, arrays1 = build(1)
@@ -102,9 +97,8 @@ def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
 
 
 def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
-    """The build's reductions are vectorised under reassociation: the result must not depend on
-    the memory addresses of the arrays (which differ between processes, e.g. a Dask worker and
-    its client).  Twenty builds, each after an allocation that shifts the heap, in 1-3 chunks,
+    """The result must not depend on the memory addresses of the arrays (which differ between
+    processes, e.g. a Dask worker and its client; a build with reassociated reductions did).  Twenty builds, each after an allocation that shifts the heap, in 1-3 chunks,
     give the same consistent-Laplacian coefficients and derivatives bit for bit."""
     model = CoupledModel(RunParams(resolution="coarse"))
     ops, t = model.ops_n, model.ops_n.table
@@ -120,10 +114,9 @@ def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
         arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
                   np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
                   lap_c]
-        for part in np.array_split(ops.all_nodes, 1 + trial % 3):
-            mfpm_derivatives(model.x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
-                             t.nbr, t.mirrored, part, fields, parity, COND_MAX, out, *arrays,
-                             True, True)
+        mfpm_derivatives(model.x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start, t.nbr,
+                         t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out, *arrays, True,
+                         True, 1 + trial % 3)
         if first is None:
             first = (out, lap_c)
         assert np.array_equal(out, first[0]) and np.array_equal(lap_c, first[1]), trial

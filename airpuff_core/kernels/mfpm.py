@@ -125,10 +125,10 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
 LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H^4
 
 
-@njit(cache=True, fastmath={"reassoc", "contract", "nsz"})
+@njit(cache=True, parallel=True)
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
                      cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c,
-                     store_laplacian, store_consistent):
+                     store_laplacian, store_consistent, n_chunks):
     """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
     to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
     or only (f_x, f_y) when ``out`` has two columns.
@@ -151,13 +151,21 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
          even one, so that one loop without a branch serves both) and D f_i = S A^-1 b,
          S = diag(1/s, 1/s, 1/s^2, 1/s^2, 1/s^2).
 
-    No pair weight is stored: in the solver each operator is applied once, right after its
-    build, so storing weights would only add memory traffic.  For speed (measured, see
-    docs/performance.md): each node's x, y, h, 1/h are packed side by side, so a neighbour costs
-    one cache line; the support's pairs are written into contiguous scratch rows in the
-    distance pass itself (a branch-free compaction), so that the kernel and moment loop
-    vectorises (the fastmath flags allow only reassociation and fused
-    multiply-adds, so NaN and infinity keep their meaning); the scratch rows are one block.
+    No pair weight is stored across calls: in the solver each operator is applied once, right
+    after its build.  Within a node the weighted monomials W_ij P_j are kept in scratch rows,
+    for the moment sums and every field.  For speed (measured, see docs/performance.md): each
+    node's x, y, h, 1/h are packed side by side, so a neighbour costs one cache line; the
+    support's pairs are written into contiguous scratch rows in the distance pass itself (a
+    branch-free compaction); the scratch rows are one block.
+
+    The nodes are built in ``n_chunks`` contiguous chunks (``threads.chunks``) by a parallel
+    loop (one chunk without it); a node's results depend on its own support only.  The
+    arithmetic is strict IEEE (no ``fastmath``): with reassociated sums the compiler vectorised
+    the reductions differently in each compiled copy of the loop (serial or parallel, fresh or
+    from the Numba cache), and the last bits of the consistent Laplacian differed between a run
+    in a Dask worker and the same run in its client (measured).  Every sum runs in the order of
+    the pairs, so the results are the same bit for bit for any chunks, threads, process or
+    cache (tests/test_threads.py).
 
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
     b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in
@@ -171,8 +179,6 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
 
     Returns 0, or i+1 for the first node whose matrix is singular or worse than ``cond_max``.
     """
-    n_fields = fields.shape[0]
-    n_rows = out.shape[2]  # 5, or 2 for the gradient only
     n = x.shape[0]
     node = np.empty((n, 4))
     for i in range(n):
@@ -180,26 +186,53 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
         node[i, 1] = y[i]
         node[i, 2] = h[i]
         node[i, 3] = inv_h[i]
+    n_chunks = max(1, min(n_chunks, nodes.shape[0]))
+    if n_chunks == 1:  # no parallel loop to launch
+        return _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
+                            cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b,
+                            lap_c, store_laplacian, store_consistent)
+    status = np.zeros(n_chunks, np.int64)
+    for c in prange(n_chunks):
+        lo, hi = chunk_bounds(nodes.shape[0], n_chunks, c)
+        status[c] = _build_nodes(nodes[lo:hi], node, area, kappa, start, nbr, mirrored, fields,
+                                 parity, cond_max, out, cond, lap_count, lap_nbr, lap_mirrored,
+                                 lap_sign, lap_b, lap_c, store_laplacian, store_consistent)
+    for c in range(n_chunks):  # the first failing node in the order of ``nodes``
+        if status[c]:
+            return status[c]
+    return 0
+
+
+@njit(inline="always")
+def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity, cond_max, out,
+                 cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c, store_laplacian,
+                 store_consistent):
+    """The loop of ``mfpm_derivatives`` over ``nodes`` (one chunk), with its own scratch rows;
+    ``node`` holds each node's (x, y, h, 1/h) side by side.  Inlined into ``mfpm_derivatives``."""
+    n_fields = fields.shape[0]
+    n_rows = out.shape[2]  # 5, or 2 for the gradient only
     width = 1
     for i in nodes:
         width = max(width, start[i + 1] - start[i])
     # scratch rows in one block: separate small allocations may land 4 KiB apart, where the
     # loads of one row wait on stores to another (4K aliasing)
-    scratch = np.empty((8, width))
+    scratch = np.empty((13, width))
     u_k, v_k, r2_k, inv_support_k, sign_k, w_k, t3_k, ones_k = (
         scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5], scratch[6],
         scratch[7])
-    ones_k[:] = 1.0
+    pw0, pw1, pw2, pw3, pw4 = scratch[8], scratch[9], scratch[10], scratch[11], scratch[12]
+    for k in range(width):  # a loop, not ones_k[:] = 1.0: in a parallel function an array
+        ones_k[k] = 1.0  # expression becomes a parallel loop, and wakes every thread
     index_scratch = np.empty((2, width), np.uint32)
     keep = index_scratch[0]  # candidate slot of the k-th pair inside the support
     nbr_k = index_scratch[1]
     inv_kappa = 1.0 / kappa
     status = 0
     for i in nodes:
-        xi = x[i]
-        yi = y[i]
-        hi = h[i]
-        inv_hi = inv_h[i]
+        xi = node[i, 0]
+        yi = node[i, 1]
+        hi = node[i, 2]
+        inv_hi = node[i, 3]
         inv_s = inv_kappa * inv_hi
         p0 = start[i]
         n_cand = start[i + 1] - p0
@@ -222,8 +255,7 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
             inv_support_k[m] = inv_kappa * min(inv_hi, node[j, 3])
             sign_k[m] = sign
             m += np.uint64(r2 < H * H)
-        # 2. kernel values and the moment sums
-        s20 = s11 = s02 = s30 = s21 = s12 = s03 = s40 = s31 = s22 = s13 = s04 = 0.0
+        # 2. kernel values and the weighted monomials W P_k, then the moment sums
         for k in range(m):
             q = np.sqrt(r2_k[k]) * inv_support_k[k]
             tq = max(1.0 - q, 0.0)  # rounding may put q at 1 for r just below H: W = 0 there
@@ -233,9 +265,20 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
             v = v_k[k]
             w_k[k] = w
             t3_k[k] = t3
-            wuu = w * u * u
-            wuv = w * u * v
-            wvv = w * v * v
+            wu = w * u
+            wv = w * v
+            pw0[k] = wu
+            pw1[k] = wv
+            pw2[k] = 0.5 * wu * u
+            pw3[k] = wu * v
+            pw4[k] = 0.5 * wv * v
+        s20 = s11 = s02 = s30 = s21 = s12 = s03 = s40 = s31 = s22 = s13 = s04 = 0.0
+        for k in range(m):
+            u = u_k[k]
+            v = v_k[k]
+            wuu = pw0[k] * u
+            wuv = pw0[k] * v
+            wvv = pw1[k] * v
             s20 += wuu
             s11 += wuv
             s02 += wvv
@@ -315,14 +358,11 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
             b0 = b1 = b2 = b3 = b4 = 0.0
             for k in range(m):
                 df = factor[k] * fields[f, nbr_k[k]] - fi
-                wdf = w_k[k] * df
-                u = u_k[k]
-                v = v_k[k]
-                b0 += u * wdf
-                b1 += v * wdf
-                b2 += 0.5 * u * u * wdf
-                b3 += u * v * wdf
-                b4 += 0.5 * v * v * wdf
+                b0 += pw0[k] * df
+                b1 += pw1[k] * df
+                b2 += pw2[k] * df
+                b3 += pw3[k] * df
+                b4 += pw4[k] * df
             out[f, i, 0] = s1 * (i00 * b0 + i10 * b1 + i20 * b2 + i30 * b3 + i40 * b4)
             out[f, i, 1] = s1 * (i10 * b0 + i11 * b1 + i21 * b2 + i31 * b3 + i41 * b4)
             if n_rows == 5:
