@@ -1,7 +1,7 @@
 """How many threads one run's kernels use (docs/performance.md, "Threads").
 
 The MFPM build (``kernels/mfpm.mfpm_derivatives``) and the hyperviscous passes (``pair_flow``,
-``pair_flow_split``, ``adjoint_flow``) split their nodes into contiguous chunks that run in
+``adjoint_flow``) split their nodes into contiguous chunks that run in
 Numba's parallel loops (``chunks``).  A node's result never depends on the chunking, the
 adjoint's sums are added in a fixed order, and the build's arithmetic is strict IEEE, so a run
 gives the same numbers, bit for bit, with any number of threads, in any process.  A single run
@@ -19,6 +19,7 @@ libgomp (``libgomp1``), which the Docker image installs.
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib
 import threading
 
@@ -28,28 +29,24 @@ CHUNKS_PER_THREAD = 4
 SERIAL_BELOW = 256  # nodes
 
 _FAST_LAYERS = {"omp": "numba.np.ufunc.omppool", "tbb": "numba.np.ufunc.tbbpool"}
-_layer_cache: dict[str, bool] = {}
 _state = threading.local()
 
 
+@functools.cache
 def _fast_layer_available() -> bool:
     """True if Numba can use an OpenMP or TBB threading layer here (and is allowed to)."""
-    if "ok" not in _layer_cache:
-        import numba
+    import numba
 
-        wanted = str(numba.config.THREADING_LAYER).lower()
-        layers = [wanted] if wanted in _FAST_LAYERS else (
-            list(_FAST_LAYERS) if wanted in ("default", "threadsafe", "forksafe", "safe") else [])
-        ok = False
-        for name in layers:
-            try:
-                importlib.import_module(_FAST_LAYERS[name])
-                ok = True
-                break
-            except ImportError:
-                continue
-        _layer_cache["ok"] = ok
-    return _layer_cache["ok"]
+    wanted = str(numba.config.THREADING_LAYER).lower()
+    layers = [wanted] if wanted in _FAST_LAYERS else (
+        list(_FAST_LAYERS) if wanted in ("default", "threadsafe", "forksafe", "safe") else [])
+    for name in layers:
+        try:
+            importlib.import_module(_FAST_LAYERS[name])
+            return True
+        except ImportError:
+            continue
+    return False
 
 
 def max_threads() -> int:

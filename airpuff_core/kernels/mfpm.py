@@ -437,9 +437,7 @@ def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area
 @njit(cache=True)
 def _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_density, out_rho,
                     out_vx, out_vy):
-    """Rows lo ... hi - 1 of ``pair_flow`` (``coef_density`` None: ``coef`` on every field) and
-    of ``pair_flow_split``.  Numba compiles the None case apart, without the second array:
-    loading the same coefficients twice cost a quarter more (measured)."""
+    """Rows lo ... hi - 1 of ``pair_flow``."""
     for i in range(lo, hi):
         acc_r = 0.0
         acc_x = 0.0
@@ -462,40 +460,28 @@ def _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_den
 
 
 @njit(cache=True, parallel=True)
-def pair_flow(rho, vx, vy, start, nbr, sign, count, coef, n_chunks, out_rho, out_vx, out_vy):
-    """The pair operator (K f)_i = sum_j c_ij (f_j - f_i) of coefficients ``coef`` (Brookshaw's
-    ``lap_b`` or the consistent ``lap_c``) on the three flow fields in one pass over the pairs
-    (rho and v_y even in x, v_x odd: an image carries sign * v_x, ``sign`` = -1.0 for an image):
-    each field's sum is the one ``brookshaw_laplacian`` forms.  Multiplying by the sign, not
-    branching on ``mirrored``, and one coefficient array make the pass about 1.5 times faster
-    (measured).  Each node's sums are its own, so the ``n_chunks`` contiguous chunks of nodes
+def pair_flow(rho, vx, vy, start, nbr, sign, count, coef, coef_density, n_chunks, out_rho,
+              out_vx, out_vy):
+    """The pair operator (K f)_i = sum_j c_ij (f_j - f_i) on the three flow fields in one pass
+    over the pairs (rho and v_y even in x, v_x odd: an image carries sign * v_x, ``sign`` = -1.0
+    for an image), with the coefficients ``coef`` (Brookshaw's ``lap_b`` or the consistent
+    ``lap_c``) on the velocity and ``coef_density`` on rho, or ``coef`` on rho too when
+    ``coef_density`` is None: each field's sum is the one ``brookshaw_laplacian`` forms.  A
+    separate density coefficient is the first pass of K^* L K on the velocity with L^3 on the
+    density (one pass instead of two); Numba compiles the None case apart, without the second
+    array (loading the same coefficients twice cost a quarter more, measured).  Multiplying by
+    the sign, not branching on ``mirrored``, makes the pass about 1.5 times faster (measured).
+    Each node's sums are its own, so the ``n_chunks`` contiguous chunks of nodes
     (``threads.chunks``) run in parallel and give the same result for any number."""
     n = rho.shape[0]
     if n_chunks <= 1:
-        _pair_flow_rows(0, n, rho, vx, vy, start, nbr, sign, count, coef, None, out_rho, out_vx,
-                        out_vy)
-        return
-    for c in prange(n_chunks):
-        lo, hi = chunk_bounds(n, n_chunks, c)
-        _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, None, out_rho,
+        _pair_flow_rows(0, n, rho, vx, vy, start, nbr, sign, count, coef, coef_density, out_rho,
                         out_vx, out_vy)
-
-
-@njit(cache=True, parallel=True)
-def pair_flow_split(rho, vx, vy, start, nbr, sign, count, coef_density, coef_velocity, n_chunks,
-                    out_rho, out_vx, out_vy):
-    """``pair_flow`` with the coefficients ``coef_density`` on rho and ``coef_velocity`` on v_x,
-    v_y (the first pass of K^* L K on the velocity with L^3 on the density): one pass instead
-    of two."""
-    n = rho.shape[0]
-    if n_chunks <= 1:
-        _pair_flow_rows(0, n, rho, vx, vy, start, nbr, sign, count, coef_velocity,
-                        coef_density, out_rho, out_vx, out_vy)
         return
     for c in prange(n_chunks):
         lo, hi = chunk_bounds(n, n_chunks, c)
-        _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef_velocity,
-                        coef_density, out_rho, out_vx, out_vy)
+        _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_density,
+                        out_rho, out_vx, out_vy)
 
 
 ADJOINT_CHUNKS = 2  # fixed, so that the adjoint's sums do not depend on the number of threads
@@ -565,15 +551,15 @@ def adjoint_flow(rho, vx, vy, start, nbr, sign, count, coef, coef_density, area,
         inv_a = 1.0 / area[i]
         total_vx = scatter[0, 1, i]
         total_vy = scatter[0, 2, i]
-        total_rho = scatter[0, 0, i]
         for c in range(1, ADJOINT_CHUNKS):
             total_vx += scatter[c, 1, i]
             total_vy += scatter[c, 2, i]
-            if with_density:
-                total_rho += scatter[c, 0, i]
         out_vx[i] = total_vx * inv_a
         out_vy[i] = total_vy * inv_a
-        if with_density:
+        if with_density:  # otherwise out_rho holds the gathered density sums already
+            total_rho = scatter[0, 0, i]
+            for c in range(1, ADJOINT_CHUNKS):
+                total_rho += scatter[c, 0, i]
             out_rho[i] = total_rho * inv_a
 
 
@@ -599,15 +585,20 @@ def hyperviscous_flow_operator(rho, vx, vy, start, nbr, sign, count, lap_b, lap_
     b_r, b_x, b_y = work[0, 0], work[0, 1], work[0, 2]
     scatter = work[1:]
     if not consistent_velocity:
-        pair_flow(rho, vx, vy, start, nbr, sign, count, lap_b, n_chunks, out_rho, out_vx, out_vy)
-        pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, n_chunks, b_r, b_x, b_y)
-        pair_flow(b_r, b_x, b_y, start, nbr, sign, count, lap_b, n_chunks, out_rho, out_vx, out_vy)
+        pair_flow(rho, vx, vy, start, nbr, sign, count, lap_b, None, n_chunks, out_rho, out_vx,
+                  out_vy)
+        pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, None, n_chunks, b_r,
+                  b_x, b_y)
+        pair_flow(b_r, b_x, b_y, start, nbr, sign, count, lap_b, None, n_chunks, out_rho, out_vx,
+                  out_vy)
         return
     if consistent_density:
-        pair_flow(rho, vx, vy, start, nbr, sign, count, lap_c, n_chunks, out_rho, out_vx, out_vy)
+        pair_flow(rho, vx, vy, start, nbr, sign, count, lap_c, None, n_chunks, out_rho, out_vx,
+                  out_vy)
     else:
-        pair_flow_split(rho, vx, vy, start, nbr, sign, count, lap_b, lap_c, n_chunks, out_rho,
-                        out_vx, out_vy)
-    pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, n_chunks, b_r, b_x, b_y)
+        pair_flow(rho, vx, vy, start, nbr, sign, count, lap_c, lap_b, n_chunks, out_rho, out_vx,
+                  out_vy)
+    pair_flow(out_rho, out_vx, out_vy, start, nbr, sign, count, lap_b, None, n_chunks, b_r, b_x,
+              b_y)
     adjoint_flow(b_r, b_x, b_y, start, nbr, sign, count, lap_c, lap_b, area, consistent_density,
                  n_chunks, scatter, out_rho, out_vx, out_vy)
