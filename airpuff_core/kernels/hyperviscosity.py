@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .mfpm import flow_operator_work, hyperviscous_flow_operator
+from .mfpm import FUSED_MULTIPLY_ADD, flow_operator_work, hyperviscous_flow_operator
 
 
 def legendre_plan(steps):
@@ -52,7 +52,7 @@ def increments_work(n):
     return np.empty((12, n)), flow_operator_work(n)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
 def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, sign, count,
                                  lap_b, lap_c, area, consistent_density, consistent_velocity,
                                  scale, dt, stages, supersteps, n_chunks, work, operator_work,

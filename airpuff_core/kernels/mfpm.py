@@ -122,10 +122,18 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
     return max(c0, c1, c2, c3, c4)
 
 
+# The one floating-point liberty the kernels take: a * b + c may be one fused multiply-add (one
+# rounding instead of two), which cuts the pair loops' instruction count (MFPM build 2.8 -> 3.2 M
+# evaluations per core per second, measured, docs/performance.md).  The choice is made per
+# expression, so every compiled copy of a loop rounds alike.  No reassociation: that let the
+# compiler vectorise sums in an order that differed between compiled copies (bits then differed
+# between a Dask worker and its client); no 'nnan': the singular-matrix checks test for NaN.
+FUSED_MULTIPLY_ADD = {"contract"}
+
 LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H^4
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, fastmath=FUSED_MULTIPLY_ADD)
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
                      cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c,
                      store_laplacian, store_consistent, n_chunks):
@@ -153,19 +161,20 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
 
     No pair weight is stored across calls: in the solver each operator is applied once, right
     after its build.  Within a node the weighted monomials W_ij P_j are kept in scratch rows,
-    for the moment sums and every field.  For speed (measured, see docs/performance.md): each
+    for the moment sums and every field; two fields share a pass over them.  For speed
+    (measured, see docs/performance.md): each
     node's x, y, h, 1/h are packed side by side, so a neighbour costs one cache line; the
     support's pairs are written into contiguous scratch rows in the distance pass itself (a
     branch-free compaction); the scratch rows are one block.
 
     The nodes are built in ``n_chunks`` contiguous chunks (``threads.chunks``) by a parallel
     loop (one chunk without it); a node's results depend on its own support only.  The
-    arithmetic is strict IEEE (no ``fastmath``): with reassociated sums the compiler vectorised
-    the reductions differently in each compiled copy of the loop (serial or parallel, fresh or
-    from the Numba cache), and the last bits of the consistent Laplacian differed between a run
-    in a Dask worker and the same run in its client (measured).  Every sum runs in the order of
-    the pairs, so the results are the same bit for bit for any chunks, threads, process or
-    cache (tests/test_threads.py).
+    arithmetic is IEEE with fused multiply-adds only (``FUSED_MULTIPLY_ADD``): with reassociated
+    sums the compiler vectorised the reductions differently in each compiled copy of the loop
+    (serial or parallel, fresh or from the Numba cache), and the last bits of the consistent
+    Laplacian differed between a run in a Dask worker and the same run in its client
+    (measured).  Every sum runs in the order of the pairs, so the results are the same bit for
+    bit for any chunks, threads, process or cache (tests/test_threads.py).
 
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
     b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in
@@ -204,6 +213,22 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
 
 
 @njit(inline="always")
+def _store_derivatives(out, f, i, n_rows, inv_s, inverse, b0, b1, b2, b3, b4):
+    """out[f, i, :] = S A^-1 b for the moment vector b of field f at node i, with A^-1's lower
+    triangle ``inverse`` and S = diag(1/s, 1/s, 1/s^2, 1/s^2, 1/s^2), 1/s = ``inv_s``: the first
+    ``n_rows`` (2 or 5) of (f_x, f_y, f_xx, f_xy, f_yy)."""
+    i00, i10, i11, i20, i21, i22, i30, i31, i32, i33, i40, i41, i42, i43, i44 = inverse
+    s1 = inv_s
+    s2 = inv_s * inv_s
+    out[f, i, 0] = s1 * (i00 * b0 + i10 * b1 + i20 * b2 + i30 * b3 + i40 * b4)
+    out[f, i, 1] = s1 * (i10 * b0 + i11 * b1 + i21 * b2 + i31 * b3 + i41 * b4)
+    if n_rows == 5:
+        out[f, i, 2] = s2 * (i20 * b0 + i21 * b1 + i22 * b2 + i32 * b3 + i42 * b4)
+        out[f, i, 3] = s2 * (i30 * b0 + i31 * b1 + i32 * b2 + i33 * b3 + i43 * b4)
+        out[f, i, 4] = s2 * (i40 * b0 + i41 * b1 + i42 * b2 + i43 * b3 + i44 * b4)
+
+
+@njit(inline="always")
 def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity, cond_max, out,
                  cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c, store_laplacian,
                  store_consistent):
@@ -223,9 +248,7 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
     pw0, pw1, pw2, pw3, pw4 = scratch[8], scratch[9], scratch[10], scratch[11], scratch[12]
     for k in range(width):  # a loop, not ones_k[:] = 1.0: in a parallel function an array
         ones_k[k] = 1.0  # expression becomes a parallel loop, and wakes every thread
-    index_scratch = np.empty((2, width), np.uint32)
-    keep = index_scratch[0]  # candidate slot of the k-th pair inside the support
-    nbr_k = index_scratch[1]
+    nbr_k = np.empty(width, np.uint32)
     inv_kappa = 1.0 / kappa
     status = 0
     for i in nodes:
@@ -247,7 +270,6 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
             dy = node[j, 1] - yi
             H = kappa * max(hi, node[j, 2])
             r2 = dx * dx + dy * dy
-            keep[m] = c
             nbr_k[m] = j
             u_k[m] = dx * inv_s
             v_k[m] = dy * inv_s
@@ -312,7 +334,7 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                 j = nbr_k[k]
                 ih2 = inv_support_k[k] * inv_support_k[k]
                 lap_nbr[p0 + k] = j
-                lap_mirrored[p0 + k] = mirrored[p0 + keep[k]]
+                lap_mirrored[p0 + k] = sign_k[k] < 0.0
                 lap_sign[p0 + k] = sign_k[k]
                 lap_b[p0 + k] = area[j] * LAPLACIAN_SCALE * ih2 * ih2 * t3_k[k]
             lap_count[i] = m
@@ -348,31 +370,52 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                 gx = (i00 * u + i10 * v + i20 * q2 + i30 * q3 + i40 * q4) * w_k[k]
                 gy = (i10 * u + i11 * v + i21 * q2 + i31 * q3 + i41 * q4) * w_k[k]
                 lap_c[p0 + k] = lap_b[p0 + k] - (mx * gx + my * gy)
-        # 4. each field's moment vector b, then D f = S A^-1 b
-        s1 = inv_s
-        s2 = inv_s * inv_s
-        for f in range(n_fields):
+        # 4. each field's moment vector b, then D f = S A^-1 b; two fields share one pass over
+        # the pairs: each sum b_a is a chain of dependent additions, and ten chains instead of
+        # five keep the floating-point units busy (measured, docs/performance.md)
+        inverse = (i00, i10, i11, i20, i21, i22, i30, i31, i32, i33, i40, i41, i42, i43, i44)
+        for f in range(0, n_fields - 1, 2):
+            g = f + 1
             fi = fields[f, i]
+            gi = fields[g, i]
             # an image of an odd field carries -f_j: the factor of f_j is the image's sign
-            factor = sign_k if parity[f] < 0.0 else ones_k
+            factor_f = sign_k if parity[f] < 0.0 else ones_k
+            factor_g = sign_k if parity[g] < 0.0 else ones_k
             b0 = b1 = b2 = b3 = b4 = 0.0
+            c0 = c1 = c2 = c3 = c4 = 0.0
             for k in range(m):
-                df = factor[k] * fields[f, nbr_k[k]] - fi
+                j = nbr_k[k]
+                df = factor_f[k] * fields[f, j] - fi
+                dg = factor_g[k] * fields[g, j] - gi
                 b0 += pw0[k] * df
                 b1 += pw1[k] * df
                 b2 += pw2[k] * df
                 b3 += pw3[k] * df
                 b4 += pw4[k] * df
-            out[f, i, 0] = s1 * (i00 * b0 + i10 * b1 + i20 * b2 + i30 * b3 + i40 * b4)
-            out[f, i, 1] = s1 * (i10 * b0 + i11 * b1 + i21 * b2 + i31 * b3 + i41 * b4)
-            if n_rows == 5:
-                out[f, i, 2] = s2 * (i20 * b0 + i21 * b1 + i22 * b2 + i32 * b3 + i42 * b4)
-                out[f, i, 3] = s2 * (i30 * b0 + i31 * b1 + i32 * b2 + i33 * b3 + i43 * b4)
-                out[f, i, 4] = s2 * (i40 * b0 + i41 * b1 + i42 * b2 + i43 * b3 + i44 * b4)
+                c0 += pw0[k] * dg
+                c1 += pw1[k] * dg
+                c2 += pw2[k] * dg
+                c3 += pw3[k] * dg
+                c4 += pw4[k] * dg
+            _store_derivatives(out, f, i, n_rows, inv_s, inverse, b0, b1, b2, b3, b4)
+            _store_derivatives(out, g, i, n_rows, inv_s, inverse, c0, c1, c2, c3, c4)
+        if n_fields % 2 == 1:
+            f = n_fields - 1
+            fi = fields[f, i]
+            factor_f = sign_k if parity[f] < 0.0 else ones_k
+            b0 = b1 = b2 = b3 = b4 = 0.0
+            for k in range(m):
+                df = factor_f[k] * fields[f, nbr_k[k]] - fi
+                b0 += pw0[k] * df
+                b1 += pw1[k] * df
+                b2 += pw2[k] * df
+                b3 += pw3[k] * df
+                b4 += pw4[k] * df
+            _store_derivatives(out, f, i, n_rows, inv_s, inverse, b0, b1, b2, b3, b4)
     return status
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
 def brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, out):
     """out_i = sum_j b_ij (f_j - f_i): the sign-definite SPH Laplacian (or, with the coefficients
     c_ij, the consistent Laplacian K of ``hyperviscous_term``)."""
@@ -387,7 +430,7 @@ def brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, out):
         out[i] = acc
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
 def pair_operator_adjoint(f, parity, start, nbr, mirrored, count, coef, area, out):
     """out = A^-1 K^T A f: the adjoint, in the weighted inner product <f, g> = sum_i A_i f_i g_i
     (``area`` = A: the node areas, halved on the axis, where the Brookshaw Laplacian is
@@ -434,7 +477,7 @@ def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area
         out[i] *= scale[i]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
 def _pair_flow_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_density, out_rho,
                     out_vx, out_vy):
     """Rows lo ... hi - 1 of ``pair_flow``."""
@@ -487,7 +530,7 @@ def pair_flow(rho, vx, vy, start, nbr, sign, count, coef, coef_density, n_chunks
 ADJOINT_CHUNKS = 2  # fixed, so that the adjoint's sums do not depend on the number of threads
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
 def _adjoint_rows(lo, hi, rho, vx, vy, start, nbr, sign, count, coef, coef_density, area,
                   with_density, acc_rho, acc_vx, acc_vy, out_rho):
     """Nodes lo ... hi - 1 of ``adjoint_flow``: their pairs scattered into ``acc_*`` (zeroed
