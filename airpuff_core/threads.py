@@ -3,7 +3,8 @@
 The MFPM build (``kernels/mfpm.mfpm_derivatives``) and the hyperviscous passes (``pair_flow``,
 ``adjoint_flow``) split their nodes into contiguous chunks that run in
 Numba's parallel loops (``chunks``).  A node's result never depends on the chunking, the
-adjoint's sums are added in a fixed order, and the build's arithmetic is strict IEEE, so a run
+adjoint's sums are added in a fixed order, and the kernels' sums are never reassociated (fused
+multiply-adds are their only liberty: ``kernels.mfpm.FUSED_MULTIPLY_ADD``), so a run
 gives the same numbers, bit for bit, with any number of threads, in any process.  A single run
 (``simulate``, ``airpuff run``) uses every core Numba sees (``NUMBA_NUM_THREADS``) unless told
 otherwise; a sweep's points run on one thread each (``sweep.worker``), since the sweep already

@@ -122,6 +122,66 @@ def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
         assert np.array_equal(out, first[0]) and np.array_equal(lap_c, first[1]), trial
 
 
+def build_and_operator_outputs():
+    """Every output of a coarse build (derivatives of an odd and two even fields, condition
+    numbers, both pair lists) and of the three-field hyperviscous operator, on one chunk and
+    on three, at nodes moved off the lattice."""
+    model = CoupledModel(RunParams(resolution="coarse"))
+    ops, t = model.ops_n, model.ops_n.table
+    n = model.x.size
+    rng = np.random.default_rng(5)
+    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.kind == 0)
+    ops.table.update(x, model.y)
+    fields = rng.standard_normal((3, n))
+    ops.start[:] = t.start
+    arrays = {"cond": ops.cond, "count": ops.count, "nbr": ops.nbr, "mirrored": ops.mirrored,
+              "sign": ops.sign, "lap_b": ops.lap_b, "lap_c": ops.lap_c}
+    outputs = {}
+    for chunks in (1, 3):
+        out = np.zeros((3, n, 5))
+        status = mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
+                                  t.nbr, t.mirrored, ops.all_nodes, fields,
+                                  np.array([1.0, -1.0, 1.0]), COND_MAX, out, *arrays.values(),
+                                  True, True, chunks)
+        assert status == 0
+        outputs[f"derivatives_{chunks}"] = out
+        outputs.update({f"{name}_{chunks}": a.copy() for name, a in arrays.items()})
+        outputs[f"operator_{chunks}"] = _flow(model, fields, chunks)  # on the lists just built
+    return outputs
+
+
+COMPILE_AND_SAVE = """
+import sys
+import numpy as np
+from tests.test_threads import build_and_operator_outputs
+np.savez(sys.argv[1], **build_and_operator_outputs())
+"""
+
+
+def test_fresh_compilation_gives_the_cached_bits(tmp_path):
+    """The kernels compiled afresh (a process with an empty Numba cache, as a new Dask worker or
+    a fresh clone), the same kernels loaded from that cache by a second process, and this
+    process's give the same bits: fused multiply-adds are chosen per expression, the same in
+    every compiled copy, and no sum is reassociated (``kernels.mfpm.FUSED_MULTIPLY_ADD``; with
+    reassociation allowed, the cached build differed from the fresh one in the last bits)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba_cache")}
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    results = []
+    for name in ("fresh", "cached"):
+        results.append(tmp_path / f"{name}.npz")
+        proc = subprocess.run([sys.executable, "-c", COMPILE_AND_SAVE, str(results[-1])], env=env,
+                              capture_output=True, text=True, timeout=600, cwd=root)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    here = build_and_operator_outputs()
+    for result in results:
+        with np.load(result) as other:
+            assert sorted(other.files) == sorted(here)
+            for name, value in here.items():
+                assert np.array_equal(other[name], value), (result.name, name)
+    for name in ("derivatives", "lap_c", "operator"):  # and one chunk = three chunks
+        assert np.array_equal(here[f"{name}_1"], here[f"{name}_3"]), name
+
+
 RUN_ON_ONE_AND_TWO_THREADS = """
 import sys
 import numpy as np
