@@ -334,7 +334,7 @@ class CoupledModel:
         supersteps, stages = legendre_plan(dt / self.dt_hyperviscous)
         self.last_hv_substeps = supersteps * stages  # applications of the operator
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
-                                     *self.ops_n.hyperviscous_flow_args(),
+                                     *self.ops_n.hyperviscosity_args(),
                                      self.hv_consistent_density, self.hv_consistent_velocity,
                                      scale, dt, stages, supersteps, chunks(self.x.shape[0]),
                                      *self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])

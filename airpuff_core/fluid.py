@@ -106,7 +106,6 @@ class Operators:
         self.start = np.zeros(n + 1, np.int64)
         self.count = np.zeros(n, np.int64)
         self.nbr = np.zeros(n * MAX_NEIGHBOURS, np.uint32)
-        self.mirrored = np.zeros(n * MAX_NEIGHBOURS, np.int8)
         self.sign = np.zeros(n * MAX_NEIGHBOURS)  # -1.0 for a mirror image, else 1.0
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
         self.consistent = consistent
@@ -151,7 +150,7 @@ class Operators:
             self.start[:] = t.start
         status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
                                   t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
-                                  self.count, self.nbr, self.mirrored, self.sign, self.lap_b,
+                                  self.count, self.nbr, self.sign, self.lap_b,
                                   self.lap_c, laplacian, laplacian and self.consistent,
                                   chunks(nodes.shape[0]))
         if laplacian:
@@ -173,20 +172,15 @@ class Operators:
         return self
 
     def laplacian_args(self):
-        """(start, nbr, mirrored, count, lap_b) for the Brookshaw-Laplacian kernels."""
+        """(start, nbr, sign, count, lap_b) for the Brookshaw-Laplacian kernels."""
         if not self.has_laplacian:
             raise RuntimeError("no Brookshaw pair lists: build with laplacian=True first")
-        return self.start, self.nbr, self.mirrored, self.count, self.lap_b
+        return self.start, self.nbr, self.sign, self.count, self.lap_b
 
     def hyperviscosity_args(self):
-        """(start, nbr, mirrored, count, lap_b, lap_c, weight) for the hyperviscosity kernels."""
+        """(start, nbr, sign, count, lap_b, lap_c, weight) for the hyperviscosity kernels
+        (``hyperviscous_term``, ``hyperviscous_flow_operator``)."""
         return (*self.laplacian_args(), self.lap_c, self.adjoint_weight)
-
-    def hyperviscous_flow_args(self):
-        """(start, nbr, sign, count, lap_b, lap_c, weight) for
-        ``kernels.mfpm.hyperviscous_flow_operator``."""
-        start, nbr, _, count, lap_b = self.laplacian_args()
-        return start, nbr, self.sign, count, lap_b, self.lap_c, self.adjoint_weight
 
     def hyperviscous(self, f, parity, scale, work1, work2, out, consistent=False):
         """out = scale * H f, the hyperviscous term with H = L^3, or K^* L K if ``consistent``

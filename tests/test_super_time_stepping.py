@@ -22,7 +22,7 @@ def model():
 
 
 def _operator_args(model):
-    return (*model.ops_n.hyperviscous_flow_args(), model.hv_consistent_density,
+    return (*model.ops_n.hyperviscosity_args(), model.hv_consistent_density,
             model.hv_consistent_velocity)
 
 

@@ -32,7 +32,7 @@ def model(request):
 def _flow(model, fields, n_chunks):
     n = model.x.size
     out = np.empty((3, n))
-    hyperviscous_flow_operator(*fields, *model.ops_n.hyperviscous_flow_args(),
+    hyperviscous_flow_operator(*fields, *model.ops_n.hyperviscosity_args(),
                                model.hv_consistent_density, model.hv_consistent_velocity,
                                n_chunks, flow_operator_work(n), *out)
     return out
@@ -81,7 +81,7 @@ def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
     def build(chunks):
         out = np.zeros((3, n, 5))
         arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
-                  np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
+                  np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
                   np.zeros_like(ops.lap_c)]
         status = mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
                                   t.nbr, t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out,
@@ -112,7 +112,7 @@ def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
         out = np.zeros((2, n, 5))
         lap_c = np.zeros_like(ops.lap_c)
         arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
-                  np.zeros_like(ops.mirrored), np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
+                  np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
                   lap_c]
         mfpm_derivatives(model.x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start, t.nbr,
                          t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out, *arrays, True,
@@ -134,8 +134,8 @@ def build_and_operator_outputs():
     ops.table.update(x, model.y)
     fields = rng.standard_normal((3, n))
     ops.start[:] = t.start
-    arrays = {"cond": ops.cond, "count": ops.count, "nbr": ops.nbr, "mirrored": ops.mirrored,
-              "sign": ops.sign, "lap_b": ops.lap_b, "lap_c": ops.lap_c}
+    arrays = {"cond": ops.cond, "count": ops.count, "nbr": ops.nbr, "sign": ops.sign,
+              "lap_b": ops.lap_b, "lap_c": ops.lap_c}
     outputs = {}
     for chunks in (1, 3):
         out = np.zeros((3, n, 5))

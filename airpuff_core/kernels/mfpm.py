@@ -123,9 +123,10 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
 
 
 # The one floating-point liberty the kernels take: a * b + c may be one fused multiply-add (one
-# rounding instead of two), which cuts the pair loops' instruction count (MFPM build 2.8 -> 3.2 M
-# evaluations per core per second, measured, docs/performance.md).  The choice is made per
-# expression, so every compiled copy of a loop rounds alike.  No reassociation: that let the
+# rounding instead of two), which cuts the pair loops' instruction count (with two fields per
+# pass, the MFPM build 2.8 -> 3.3 M evaluations per core-second, measured, docs/performance.md).
+# The choice is made per expression, so every compiled copy of a loop rounds alike.  No
+# reassociation: that let the
 # compiler vectorise sums in an order that differed between compiled copies (bits then differed
 # between a Dask worker and its client); no 'nnan': the singular-matrix checks test for NaN.
 FUSED_MULTIPLY_ADD = {"contract"}
@@ -135,7 +136,7 @@ LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCA
 
 @njit(cache=True, parallel=True, fastmath=FUSED_MULTIPLY_ADD)
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
-                     cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c,
+                     cond_max, out, cond, lap_count, lap_nbr, lap_sign, lap_b, lap_c,
                      store_laplacian, store_consistent, n_chunks):
     """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
     to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
@@ -179,9 +180,9 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
     b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in
     lap_*[start[i] ... start[i] + lap_count[i] - 1] (``lap_sign`` = -1.0 for a mirror image,
-    else 1.0: x_j's factor, which the three-field pass multiplies by rather than branching on
-    ``lap_mirrored``), for ``brookshaw_laplacian`` and the hyperviscosity, and with them (``store_consistent`` too) the coefficients of the linearly
-    consistent Laplacian
+    else 1.0: x_j's factor, which the three-field pass multiplies by rather than branching),
+    for ``brookshaw_laplacian`` and the hyperviscosity, and with them (``store_consistent``
+    too) the coefficients of the linearly consistent Laplacian
     c_ij = b_ij - m_i . g_ij (see ``consistent_laplacian``): m_i = sum_j b_ij (x_j - x_i) is the
     first moment of the Brookshaw weights (zero on a full symmetric support, not at a wall) and
     g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).
@@ -198,13 +199,13 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     n_chunks = max(1, min(n_chunks, nodes.shape[0]))
     if n_chunks == 1:  # no parallel loop to launch
         return _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
-                            cond_max, out, cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b,
+                            cond_max, out, cond, lap_count, lap_nbr, lap_sign, lap_b,
                             lap_c, store_laplacian, store_consistent)
     status = np.zeros(n_chunks, np.int64)
     for c in prange(n_chunks):
         lo, hi = chunk_bounds(nodes.shape[0], n_chunks, c)
         status[c] = _build_nodes(nodes[lo:hi], node, area, kappa, start, nbr, mirrored, fields,
-                                 parity, cond_max, out, cond, lap_count, lap_nbr, lap_mirrored,
+                                 parity, cond_max, out, cond, lap_count, lap_nbr,
                                  lap_sign, lap_b, lap_c, store_laplacian, store_consistent)
     for c in range(n_chunks):  # the first failing node in the order of ``nodes``
         if status[c]:
@@ -230,7 +231,7 @@ def _store_derivatives(out, f, i, n_rows, inv_s, inverse, b0, b1, b2, b3, b4):
 
 @njit(inline="always")
 def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity, cond_max, out,
-                 cond, lap_count, lap_nbr, lap_mirrored, lap_sign, lap_b, lap_c, store_laplacian,
+                 cond, lap_count, lap_nbr, lap_sign, lap_b, lap_c, store_laplacian,
                  store_consistent):
     """The loop of ``mfpm_derivatives`` over ``nodes`` (one chunk), with its own scratch rows;
     ``node`` holds each node's (x, y, h, 1/h) side by side.  Inlined into ``mfpm_derivatives``."""
@@ -334,7 +335,6 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                 j = nbr_k[k]
                 ih2 = inv_support_k[k] * inv_support_k[k]
                 lap_nbr[p0 + k] = j
-                lap_mirrored[p0 + k] = sign_k[k] < 0.0
                 lap_sign[p0 + k] = sign_k[k]
                 lap_b[p0 + k] = area[j] * LAPLACIAN_SCALE * ih2 * ih2 * t3_k[k]
             lap_count[i] = m
@@ -418,7 +418,7 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
 
 
 @njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
-def brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, out):
+def brookshaw_laplacian(f, parity, start, nbr, sign, count, lap_b, out):
     """out_i = sum_j b_ij (f_j - f_i): the sign-definite SPH Laplacian (or, with the coefficients
     c_ij, the consistent Laplacian K of ``hyperviscous_term``)."""
     n = f.shape[0]
@@ -427,13 +427,13 @@ def brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, out):
         fi = f[i]
         for k in range(start[i], start[i] + count[i]):
             j = nbr[k]
-            fj = parity * f[j] if mirrored[k] else f[j]
+            fj = parity * f[j] if sign[k] < 0.0 else f[j]
             acc += lap_b[k] * (fj - fi)
         out[i] = acc
 
 
 @njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
-def pair_operator_adjoint(f, parity, start, nbr, mirrored, count, coef, area, out):
+def pair_operator_adjoint(f, parity, start, nbr, sign, count, coef, area, out):
     """out = A^-1 K^T A f: the adjoint, in the weighted inner product <f, g> = sum_i A_i f_i g_i
     (``area`` = A: the node areas, halved on the axis, where the Brookshaw Laplacian is
     self-adjoint), of the pair operator (K f)_i = sum_j c_ij (f_j - f_i) that
@@ -447,14 +447,14 @@ def pair_operator_adjoint(f, parity, start, nbr, mirrored, count, coef, area, ou
         for k in range(start[i], start[i] + count[i]):
             c = coef[k]
             diagonal += c
-            out[nbr[k]] += (parity * c if mirrored[k] else c) * af
+            out[nbr[k]] += (parity * c if sign[k] < 0.0 else c) * af
         out[i] -= diagonal * af
     for i in range(n):
         out[i] /= area[i]
 
 
 @njit(cache=True)
-def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area, consistent,
+def hyperviscous_term(f, parity, start, nbr, sign, count, lap_b, lap_c, area, consistent,
                       scale, work1, work2, out):
     """out_i = scale_i (H f)_i (scale_i = gamma c h_i^5), with H = L^3 (``consistent`` False: the
     paper-reproduction operator) or H = K^* L K (``consistent`` True): L the Brookshaw Laplacian,
@@ -468,13 +468,13 @@ def hyperviscous_term(f, parity, start, nbr, mirrored, count, lap_b, lap_c, area
     and never amplifies, and acts mostly on grid-scale modes (eigenvalues grow like k^6).
     """
     if consistent:
-        brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_c, work1)
-        brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
-        pair_operator_adjoint(work2, parity, start, nbr, mirrored, count, lap_c, area, out)
+        brookshaw_laplacian(f, parity, start, nbr, sign, count, lap_c, work1)
+        brookshaw_laplacian(work1, parity, start, nbr, sign, count, lap_b, work2)
+        pair_operator_adjoint(work2, parity, start, nbr, sign, count, lap_c, area, out)
     else:
-        brookshaw_laplacian(f, parity, start, nbr, mirrored, count, lap_b, work1)
-        brookshaw_laplacian(work1, parity, start, nbr, mirrored, count, lap_b, work2)
-        brookshaw_laplacian(work2, parity, start, nbr, mirrored, count, lap_b, out)
+        brookshaw_laplacian(f, parity, start, nbr, sign, count, lap_b, work1)
+        brookshaw_laplacian(work1, parity, start, nbr, sign, count, lap_b, work2)
+        brookshaw_laplacian(work2, parity, start, nbr, sign, count, lap_b, out)
     for i in range(f.shape[0]):
         out[i] *= scale[i]
 
@@ -515,7 +515,7 @@ def pair_flow(rho, vx, vy, start, nbr, sign, count, coef, coef_density, n_chunks
     separate density coefficient is the first pass of K^* L K on the velocity with L^3 on the
     density (one pass instead of two); Numba compiles the None case apart, without the second
     array (loading the same coefficients twice cost a quarter more, measured).  Multiplying by
-    the sign, not branching on ``mirrored``, makes the pass about 1.5 times faster (measured).
+    the sign, not branching on it, makes the pass about 1.5 times faster (measured).
     Each node's sums are its own, so the ``n_chunks`` contiguous chunks of nodes
     (``threads.chunks``) run in parallel and give the same result for any number."""
     n = rho.shape[0]
@@ -621,7 +621,7 @@ def hyperviscous_flow_operator(rho, vx, vy, start, nbr, sign, count, lap_b, lap_
     density with ``consistent_density`` and on the velocity with ``consistent_velocity``, L^3
     otherwise (see ``hyperviscous_term``; ``consistent_density`` requires
     ``consistent_velocity``, the operators ``consistent`` and ``consistent_velocity`` of
-    docs/model.md section 4).  The pair lists are ``Operators.hyperviscous_flow_args``; one pass
+    docs/model.md section 4).  The pair lists are ``Operators.hyperviscosity_args``; one pass
     over the pairs serves the three fields, and an application of H takes three passes (L^3 on
     rho with K^* L K on the velocity included: its passes ride along); ``work`` is the scratch
     array of ``flow_operator_work``.  This is the
