@@ -126,9 +126,9 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
 # rounding instead of two), which cuts the pair loops' instruction count (with two fields per
 # pass, the MFPM build 2.8 -> 3.3 M evaluations per core-second, measured, docs/performance.md).
 # The choice is made per expression, so every compiled copy of a loop rounds alike.  No
-# reassociation: that let the
-# compiler vectorise sums in an order that differed between compiled copies (bits then differed
-# between a Dask worker and its client); no 'nnan': the singular-matrix checks test for NaN.
+# reassociation: that let the compiler vectorise sums in an order that differed between compiled
+# copies (bits then differed between a Dask worker and its client); no 'nnan': the
+# singular-matrix checks test for NaN.
 FUSED_MULTIPLY_ADD = {"contract"}
 
 LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H^4
