@@ -1,9 +1,12 @@
 """Run parameters of one air-puff simulation, in user units, with validation and SI conversion.
 
 Every user-facing edge (CLI, HTTP API, netCDF) speaks the clinically customary units listed in
-``PARAMETERS``; the solver works in SI.  ``RunParams`` holds user units and is validated once, when
-it is made (``RunParams.validate``); ``RunParams.si()`` gives the :class:`SIParams` the solver
-uses, built once per run.  Invalid values, alone or in combination (a cornea too soft to carry the
+``PARAMETERS``; the solver works in SI.  A numeric parameter is written once, as a ``ParamSpec``
+in ``PARAMETERS`` (unit, default, range, description and its conversion to SI); the dataclasses
+``RunParams`` (user units) and ``SIParams`` (SI) are generated from that table, and so are the
+API's schema, the CLI's options and the form (``api/``).  ``RunParams`` is validated once, when
+it is made (``RunParams.validate``); ``RunParams.si()`` gives the ``SIParams`` the solver uses,
+built once per run.  Invalid values, alone or in combination (a cornea too soft to carry the
 IOP, a layout the geometry does not have), raise :class:`ParameterError`, whose message names the
 parameter and its accepted range, so that the CLI can print it on one line (exit code 2) and the
 HTTP API can return it as a 422.
@@ -14,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
@@ -71,8 +74,23 @@ class ParameterError(ValueError):
 
 
 @dataclass(frozen=True)
+class SIConversion:
+    """How a user-unit value becomes the SI value the solver uses: ``value * multiply /
+    divide``, stored as the field ``name`` of :class:`SIParams` (the user name with its SI unit,
+    e.g. ``E0_Pa``, when the user unit is not SI)."""
+
+    name: str
+    multiply: float = 1.0
+    divide: float = 1.0
+
+    def __call__(self, value: float) -> float:
+        return value * self.multiply / self.divide
+
+
+@dataclass(frozen=True)
 class ParamSpec:
-    """Description of one numeric parameter: unit, default, accepted open/closed range."""
+    """Description of one numeric parameter: unit, default, accepted open/closed range, and its
+    conversion to SI (the field of ``SIParams`` it becomes)."""
 
     name: str
     unit: str
@@ -82,6 +100,7 @@ class ParamSpec:
     low_inclusive: bool
     high_inclusive: bool
     description: str
+    to_si: SIConversion = None
 
     def accepted(self) -> str:
         lo = "[" if self.low_inclusive else "("
@@ -105,8 +124,10 @@ class ParamSpec:
         return x
 
 
-def _p(name, unit, default, low, high, desc, low_inc=False, high_inc=True):
-    return ParamSpec(name, unit, default, low, high, low_inc, high_inc, desc)
+def _p(name, unit, default, low, high, desc, low_inc=False, high_inc=True, si=None):
+    """A ParamSpec; ``si``: (SI name, factor) or (SI name, 1, divisor) when the unit is not SI."""
+    to_si = SIConversion(name) if si is None else SIConversion(*si)
+    return ParamSpec(name, unit, default, low, high, low_inc, high_inc, desc, to_si)
 
 
 # name -> spec.  Ranges are what the model is meant for (clinical and numerical sanity), not what
@@ -114,13 +135,18 @@ def _p(name, unit, default, low, high, desc, low_inc=False, high_inc=True):
 PARAMETERS: dict[str, ParamSpec] = {
     s.name: s
     for s in [
-        _p("E0", "MPa", 0.5, 0.0, 50.0, "small-strain Young's modulus of the cornea"),
-        _p("IOP", "mmHg", 16.0, 0.0, 80.0, "intraocular pressure p0 (reference fluid pressure)"),
-        _p("thickness", "mm", 0.5, 0.0, 2.0, "corneal thickness h"),
-        _p("pmax", "kPa", 10.0, 0.0, 50.0, "peak air-jet pressure", low_inc=True),
-        _p("R", "mm", 7.0, 3.0, 15.0, "radius of the corneal arc"),
-        _p("r_post", "mm", 2.04, 0.5, 10.0, "radius of the rigid posterior support (sector geometry)"),
-        _p("alpha0", "degree", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True),
+        _p("E0", "MPa", 0.5, 0.0, 50.0, "small-strain Young's modulus of the cornea",
+           si=("E0_Pa", 1e6)),
+        _p("IOP", "mmHg", 16.0, 0.0, 80.0, "intraocular pressure p0 (reference fluid pressure)",
+           si=("p0_Pa", MMHG_PA)),
+        _p("thickness", "mm", 0.5, 0.0, 2.0, "corneal thickness h", si=("thickness_m", 1e-3)),
+        _p("pmax", "kPa", 10.0, 0.0, 50.0, "peak air-jet pressure", low_inc=True,
+           si=("pmax_Pa", 1e3)),
+        _p("R", "mm", 7.0, 3.0, 15.0, "radius of the corneal arc", si=("R_m", 1e-3)),
+        _p("r_post", "mm", 2.04, 0.5, 10.0, "radius of the rigid posterior support (sector geometry)",
+           si=("r_post_m", 1e-3)),
+        _p("alpha0", "degree", 60.0, 20.0, 80.0, "half-opening angle of the cornea", low_inc=True,
+           si=("alpha0_rad", math.pi / 180.0)),
         _p("rho_cornea", "kg/m^3", 1000.0, 100.0, 5000.0, "density of the cornea"),
         _p("rho_fluid", "kg/m^3", 1000.0, 100.0, 5000.0, "reference density of the aqueous humour"),
         _p("mu", "Pa s", 7.5e-4, 0.0, 10.0, "viscosity of the aqueous humour", low_inc=True),
@@ -129,13 +155,15 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("fung_k", "1", 240.0, 0.0, 1000.0, "exponent of the Fung strain energy", low_inc=True),
         _p("a", "1", 21.5, 0.0, 1000.0, "spatial decay of the air jet, eq. (11)", low_inc=True),
         _p("b", "1", 25.0, 0.0, 1000.0, "temporal decay of the air jet, eq. (11)"),
-        _p("T", "ms", 30.0, 0.0, 10000.0, "duration scale of the air jet, eq. (11)"),
-        _p("t0", "ms", 15.0, 0.0, 10000.0, "time of the jet peak, eq. (11)", low_inc=True),
+        _p("T", "ms", 30.0, 0.0, 10000.0, "duration scale of the air jet, eq. (11)",
+           si=("T_s", 1e-3)),
+        _p("t0", "ms", 15.0, 0.0, 10000.0, "time of the jet peak, eq. (11)", low_inc=True,
+           si=("t0_s", 1e-3)),
         _p("tait_gamma", "1", 7.0, 1.0, 20.0, "exponent of the equation of state (5)", low_inc=True),
         _p("c0", "m/s", 10.0, 0.0, 1500.0, "base artificial sound speed"),
         _p("c_slope", "1", 20.0, 0.0, 1000.0, "c = c0 + c_slope * v_max", low_inc=True),
         _p("coupling_tol", "1", 1e-4, 0.0, 0.1, "Dirichlet-Neumann tolerance, eq. (6)"),
-        _p("t_end", "ms", 35.0, 0.0, 10000.0, "simulated time"),
+        _p("t_end", "ms", 35.0, 0.0, 10000.0, "simulated time", si=("t_end_s", 1e-3)),
         _p("hyperviscosity", "1", 0.15, 0.0, 10.0,
            "strength gamma of the stabilising hyperviscosity gamma c h^5 H (0 switches it off; "
            "H from hyperviscosity_operator). Smallest stable strength at coarse / paper "
@@ -143,7 +171,8 @@ PARAMETERS: dict[str, ParamSpec] = {
            "0.05-0.075 (jet runs), consistent 0.094-0.103 / 0.0625-0.075 (docs/model.md "
            "section 4)",
            low_inc=True),
-        _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories"),
+        _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories",
+           si=("output_interval_s", 1e-3)),
         _p("cfl", "1", 0.6, 0.0, 0.6,
            "acoustic CFL number: dt = cfl * h_min / (c + v_max) (stable to 0.72 at rest)"),
         _p("ve_g", "1", 0.0, 0.0, 0.95,
@@ -152,15 +181,17 @@ PARAMETERS: dict[str, ParamSpec] = {
            "model preset (paper 0, clinical 0.3: Kling et al. 2014)", low_inc=True),
         _p("ve_tau", "ms", 10.0, 0.0, 1000.0,
            "relaxation time of the cornea's viscoelasticity; set by the model preset (10: Kling "
-           "et al. 2014)"),
+           "et al. 2014)", si=("ve_tau_s", 1e-3)),
         _p("transverse_shear_modulus", "kPa", 0.0, 0.0, 1.0e5,
            "transverse (out-of-plane) shear modulus G_t of the shell cornea (cornea=shell): "
            "G_t > 0 makes the shell shear-deformable (Reissner-Mindlin, shear stiffness "
            "5/6 G_t h), 0 keeps it rigid in shear (Kirchhoff-Love); set by the model preset "
-           "(paper 0, clinical 9.48: human stroma, Petsche et al. 2012)", low_inc=True),
+           "(paper 0, clinical 9.48: human stroma, Petsche et al. 2012)", low_inc=True,
+           si=("transverse_shear_modulus_Pa", 1e3)),
         _p("ocular_rigidity", "1/uL", 0.0126, 0.0, 0.1,
            "Friedenwald's ocular rigidity K of the compliant globe, dP/dV = ln(10) K P "
-           "(globe=compliant; in-vivo mean 0.0126, Pallikaris et al. 2005)"),
+           "(globe=compliant; in-vivo mean 0.0126, Pallikaris et al. 2005)",
+           si=("ocular_rigidity_per_m3", 1.0, UL_M3)),
     ]
 }
 
@@ -248,93 +279,23 @@ def softest_E0(IOP, thickness, R, nu, fung_k):
     return math.exp(log_E0_MPa) if log_E0_MPa < 700.0 else math.inf
 
 
-@dataclass(frozen=True)
-class SIParams:
-    """The numeric run parameters in SI units (m, s, kg, Pa, rad), as the solver uses them.
-
-    Made by ``RunParams.si()`` once per run.  A field whose user unit is not SI carries its SI
-    unit in its name (``E0_Pa``, where ``RunParams.E0`` is in MPa); the others have the name and
-    the unit of the ``RunParams`` field (see ``PARAMETERS``).
-    """
-
-    E0_Pa: float  # small-strain Young's modulus of the cornea
-    p0_Pa: float  # IOP, the reference pressure of the fluid
-    thickness_m: float  # corneal thickness h
-    pmax_Pa: float  # peak air-jet pressure
-    R_m: float  # radius of the corneal arc
-    r_post_m: float  # radius of the posterior support (sector)
-    alpha0_rad: float  # half-opening angle
-    rho_cornea: float  # kg/m^3
-    rho_fluid: float  # kg/m^3, reference density rho0 of the equation of state
-    mu: float  # Pa s
-    nu: float  # Poisson-type coupling of the membrane law
-    fung_k: float  # Fung exponent
-    a: float  # spatial decay of the air jet, eq. (11)
-    b: float  # temporal decay of the air jet, eq. (11)
-    T_s: float  # duration scale of the air jet, eq. (11)
-    t0_s: float  # time of the jet peak, eq. (11)
-    tait_gamma: float  # exponent of the equation of state (5)
-    c0: float  # m/s, base artificial sound speed
-    c_slope: float  # c = c0 + c_slope v_max
-    coupling_tol: float  # Dirichlet-Neumann tolerance, eq. (6)
-    t_end_s: float  # simulated time
-    hyperviscosity: float  # strength gamma of the hyperviscosity
-    output_interval_s: float  # interval of the stored time histories
-    cfl: float  # acoustic CFL number
-    ve_g: float  # relative modulus of the Prony term (0: elastic)
-    ve_tau_s: float  # its relaxation time
-    transverse_shear_modulus_Pa: float  # G_t of the shell (0: rigid in shear, Kirchhoff-Love)
-    ocular_rigidity_per_m3: float  # Friedenwald's K of the compliant globe
-
-    def jet(self) -> np.ndarray:
-        """(pmax [Pa], a, b, T [s], t0 [s]): the arguments of the air-jet kernel, eq. (11)."""
-        return np.array([self.pmax_Pa, self.a, self.b, self.T_s, self.t0_s])
+def _jet(self) -> np.ndarray:
+    """(pmax [Pa], a, b, T [s], t0 [s]): the arguments of the air-jet kernel, eq. (11)."""
+    return np.array([self.pmax_Pa, self.a, self.b, self.T_s, self.t0_s])
 
 
-@dataclass(frozen=True)
-class RunParams:
-    """All parameters of one run, in user units (see ``PARAMETERS`` for units and ranges)."""
+# The numeric run parameters in SI units (m, s, kg, Pa, rad), as the solver uses them: one float
+# field per entry of ``PARAMETERS``, named by its ``to_si`` (``E0_Pa``, where ``RunParams.E0`` is
+# in MPa; a parameter in SI keeps its name).  Made by ``RunParams.si()`` once per run.
+SIParams = dataclasses.make_dataclass(
+    "SIParams", [(spec.to_si.name, float) for spec in PARAMETERS.values()], frozen=True,
+    namespace={"__module__": __name__, "jet": _jet,
+               "__doc__": "The numeric run parameters in SI units (``PARAMETERS``' to_si)."})
 
-    E0: float = PARAMETERS["E0"].default
-    IOP: float = PARAMETERS["IOP"].default
-    thickness: float = PARAMETERS["thickness"].default
-    pmax: float = PARAMETERS["pmax"].default
-    R: float = PARAMETERS["R"].default
-    r_post: float = PARAMETERS["r_post"].default
-    alpha0: float = PARAMETERS["alpha0"].default
-    rho_cornea: float = PARAMETERS["rho_cornea"].default
-    rho_fluid: float = PARAMETERS["rho_fluid"].default
-    mu: float = PARAMETERS["mu"].default
-    nu: float = PARAMETERS["nu"].default
-    fung_k: float = PARAMETERS["fung_k"].default
-    a: float = PARAMETERS["a"].default
-    b: float = PARAMETERS["b"].default
-    T: float = PARAMETERS["T"].default
-    t0: float = PARAMETERS["t0"].default
-    tait_gamma: float = PARAMETERS["tait_gamma"].default
-    c0: float = PARAMETERS["c0"].default
-    c_slope: float = PARAMETERS["c_slope"].default
-    coupling_tol: float = PARAMETERS["coupling_tol"].default
-    t_end: float = PARAMETERS["t_end"].default
-    hyperviscosity: float = PARAMETERS["hyperviscosity"].default
-    output_interval: float = PARAMETERS["output_interval"].default
-    cfl: float = PARAMETERS["cfl"].default
-    ve_g: float | None = None  # from the model preset unless given
-    ve_tau: float | None = None  # from the model preset unless given
-    transverse_shear_modulus: float | None = None  # from the model preset unless given
-    ocular_rigidity: float = PARAMETERS["ocular_rigidity"].default
-    resolution: str = CHOICE_DEFAULTS["resolution"]
-    geometry: str = CHOICE_DEFAULTS["geometry"]
-    layout: str = CHOICE_DEFAULTS["layout"]
-    c_rule: str = CHOICE_DEFAULTS["c_rule"]
-    jet_start: str = CHOICE_DEFAULTS["jet_start"]
-    globe: str = CHOICE_DEFAULTS["globe"]
-    hyperviscosity_operator: str = CHOICE_DEFAULTS["hyperviscosity_operator"]
-    model: str = CHOICE_DEFAULTS["model"]
-    cornea: str | None = CHOICE_DEFAULTS["cornea"]
-    limbus: str = CHOICE_DEFAULTS["limbus"]
-    max_coupling_iterations: int = INT_PARAMETERS["max_coupling_iterations"][0]
-    extra: dict = field(default_factory=dict, compare=False, repr=False)
+
+class _RunParamsMethods:
+    """Construction, validation and conversion of ``RunParams`` (its fields come from the
+    tables ``PARAMETERS``, ``CHOICES`` and ``INT_PARAMETERS``)."""
 
     def __post_init__(self):
         self.validate()
@@ -343,7 +304,7 @@ class RunParams:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> "RunParams":
         """Build from a mapping of user-unit values; unknown keys are an error."""
-        names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
+        names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(values) - names)
         if unknown:
             raise ParameterError(unknown[0], values[unknown[0]],
@@ -416,39 +377,29 @@ class RunParams:
 
     # -- conversions ------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d.pop("extra")
-        return d
+        return dataclasses.asdict(self)
 
     def si(self) -> SIParams:
         """The numeric parameters in SI units (call once per run)."""
-        return SIParams(
-            E0_Pa=self.E0 * 1e6,
-            p0_Pa=self.IOP * MMHG_PA,
-            thickness_m=self.thickness * 1e-3,
-            pmax_Pa=self.pmax * 1e3,
-            R_m=self.R * 1e-3,
-            r_post_m=self.r_post * 1e-3,
-            alpha0_rad=math.radians(self.alpha0),
-            rho_cornea=self.rho_cornea,
-            rho_fluid=self.rho_fluid,
-            mu=self.mu,
-            nu=self.nu,
-            fung_k=self.fung_k,
-            a=self.a,
-            b=self.b,
-            T_s=self.T * 1e-3,
-            t0_s=self.t0 * 1e-3,
-            tait_gamma=self.tait_gamma,
-            c0=self.c0,
-            c_slope=self.c_slope,
-            coupling_tol=self.coupling_tol,
-            t_end_s=self.t_end * 1e-3,
-            hyperviscosity=self.hyperviscosity,
-            output_interval_s=self.output_interval * 1e-3,
-            cfl=self.cfl,
-            ve_g=self.ve_g,
-            ve_tau_s=self.ve_tau * 1e-3,
-            transverse_shear_modulus_Pa=self.transverse_shear_modulus * 1e3,
-            ocular_rigidity_per_m3=self.ocular_rigidity / UL_M3,
-        )
+        return SIParams(**{spec.to_si.name: spec.to_si(getattr(self, name))
+                           for name, spec in PARAMETERS.items()})
+
+
+def _run_fields() -> list[tuple]:
+    """The fields of ``RunParams``: the numeric parameters (None for those the preset sets),
+    the choices, the integer controls, in this order (that of ``to_dict``)."""
+    fields = [(name, float | None if name in PRESET_PARAMETERS else float,
+               dataclasses.field(default=None if name in PRESET_PARAMETERS else spec.default))
+              for name, spec in PARAMETERS.items()]
+    fields += [(name, str | None if CHOICE_DEFAULTS[name] is None else str,
+                dataclasses.field(default=CHOICE_DEFAULTS[name])) for name in CHOICES]
+    fields += [(name, int, dataclasses.field(default=spec[0]))
+               for name, spec in INT_PARAMETERS.items()]
+    return fields
+
+
+RunParams = dataclasses.make_dataclass(
+    "RunParams", _run_fields(), bases=(_RunParamsMethods,), frozen=True,
+    namespace={"__module__": __name__,
+               "__doc__": "All parameters of one run, in user units (see ``PARAMETERS`` for "
+                          "units and ranges; ``CHOICES``, ``INT_PARAMETERS``)."})
