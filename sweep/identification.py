@@ -114,9 +114,12 @@ class SweepTable:
     metrics: dict[str, np.ndarray]
     n_not_ok: int = 0
     run_options: dict = field(default_factory=dict)
+    model_version: str = ""  # of the ok points (several, comma-separated, if they differ)
+    ok: np.ndarray | None = None  # shape (E0, IOP, thickness, pmax): the point's status is ok
 
     @classmethod
-    def from_netcdf(cls, path) -> "SweepTable":
+    def from_netcdf(cls, path, names=MEASURABLE) -> "SweepTable":
+        """The metrics ``names`` (default the measurable ones) of a combined sweep.nc."""
         from airpuff_core.dataset import open_dataset
 
         try:
@@ -127,7 +130,7 @@ class SweepTable:
             raise IdentifyError("sweep", f"cannot read sweep file {str(path)!r}: "
                                          f"{type(err).__name__}") from None
         with ds:
-            missing = [n for n in ("E0", "IOP", "thickness", "pmax", "status", *MEASURABLE)
+            missing = [n for n in ("E0", "IOP", "thickness", "pmax", "status", *names)
                        if n not in ds.variables]
             if missing:
                 raise IdentifyError("sweep", f"{path} is not a combined airpuff sweep "
@@ -135,7 +138,7 @@ class SweepTable:
             ds = ds.transpose("E0", "IOP", "thickness", "pmax", ...)
             ok = np.asarray(ds["status"].values).astype(str) == "ok"
             metrics = {}
-            for name in MEASURABLE:
+            for name in names:
                 a = np.asarray(ds[name].values, float).copy()
                 a[~ok] = np.nan
                 metrics[name] = a
@@ -143,18 +146,22 @@ class SweepTable:
                 options = json.loads(ds.attrs.get("run_options_json", "{}"))
             except ValueError:
                 options = {}
+            versions = (sorted(set(np.asarray(ds["model_version"].values).astype(str)[ok]))
+                        if "model_version" in ds.variables else [])
             return cls(np.asarray(ds.E0.values, float), np.asarray(ds.IOP.values, float),
                        np.asarray(ds.thickness.values, float), np.asarray(ds.pmax.values, float),
-                       metrics, int((~ok).sum()), options)
+                       metrics, int((~ok).sum()), options, ",".join(versions), ok)
 
     @classmethod
-    def from_records(cls, spec: Mapping[str, Any], records) -> "SweepTable":
+    def from_records(cls, spec: Mapping[str, Any], records, names=MEASURABLE) -> "SweepTable":
         """From a SweepSpec dict and point records ``{"E0", "IOP", "thickness", "pmax",
         "status", <metrics>}`` (what the HTTP service keeps in its database)."""
         axes = {n: np.asarray(sorted(float(v) for v in spec[n]), float)
                 for n in ("E0", "IOP", "thickness", "pmax")}
         shape = tuple(len(axes[n]) for n in ("E0", "IOP", "thickness", "pmax"))
-        metrics = {name: np.full(shape, np.nan) for name in MEASURABLE}
+        metrics = {name: np.full(shape, np.nan) for name in names}
+        versions = set()
+        ok = np.zeros(shape, bool)
         n_ok = 0
         for r in records:
             if r.get("status") != "ok":
@@ -162,11 +169,15 @@ class SweepTable:
             idx = tuple(int(np.argmin(np.abs(axes[n] - float(r[n]))))
                         for n in ("E0", "IOP", "thickness", "pmax"))
             n_ok += 1
-            for name in MEASURABLE:
+            ok[idx] = True
+            if r.get("model_version"):
+                versions.add(str(r["model_version"]))
+            for name in names:
                 v = r.get(name)
                 metrics[name][idx] = np.nan if v is None else float(v)
         return cls(axes["E0"], axes["IOP"], axes["thickness"], axes["pmax"], metrics,
-                   int(np.prod(shape)) - n_ok, dict(spec.get("options") or {}))
+                   int(np.prod(shape)) - n_ok, dict(spec.get("options") or {}),
+                   ",".join(sorted(versions)), ok)
 
 
 def _axis_weights(name: str, axis: np.ndarray, value: float | None) -> list[tuple[int, float]]:

@@ -8,6 +8,7 @@ core and the sweep machinery import nothing of the command line:
 * ``run``      -- ``airpuff run`` and ``airpuff plot``
 * ``sweep``    -- ``airpuff sweep``
 * ``identify`` -- ``airpuff identify``
+* ``correct``  -- ``airpuff correct fit|apply|sensitivity``
 * ``serve``    -- ``airpuff serve``
 
 The entry point is ``api.cli:main`` (pyproject.toml); ``python -m api.cli`` runs the same.
@@ -16,6 +17,7 @@ The entry point is ``api.cli:main`` (pyproject.toml); ``python -m api.cli`` runs
 from __future__ import annotations
 
 from .common import OneLineParser
+from .correct import add_correct_parser
 from .identify import add_identify_parser
 from .run import add_plot_parser, add_run_parser, plot_command, run_command
 from .serve import add_serve_parser
@@ -28,7 +30,7 @@ def build_parser() -> OneLineParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
     for add in (add_run_parser, add_plot_parser, add_sweep_parser, add_serve_parser,
-                add_identify_parser):
+                add_identify_parser, add_correct_parser):
         add(sub)
     return parser
 
