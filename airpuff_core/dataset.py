@@ -5,7 +5,7 @@ The run's dataset itself is made by ``RunResult.to_dataset`` (``result.py``); it
 are scalar coordinates and global attributes, the full set as the JSON attribute
 ``parameters_json``.
 
-CF-1.10 (checked with the IOOS compliance-checker, ``benchmarks/cf_check.py``): a coordinate named
+CF-1.10 (checked with the IOOS compliance-checker, ``tools/cf_check.py``): a coordinate named
 ``time`` is a CF time coordinate, so its units are ``ms since <reference>``.  The simulated puff has
 no calendar date: the reference instant ``TIME_REFERENCE`` stands for t = 0, the start of the run.
 xarray would decode such a coordinate into dates; ``open_dataset`` keeps it in milliseconds.

@@ -15,9 +15,9 @@ run).  Each phase is timed on the system-wide monotonic clock, shared by parent 
 machine may be busy (another process on the cores stretches every phase), so the warm start is
 repeated and the minimum and median are printed; a warm run that compiled anything is flagged.
 
-    python benchmarks/bench_compile.py                  # cold start, then 5 warm starts
-    python benchmarks/bench_compile.py --cache DIR      # warm starts only, on the cache in DIR
-    python benchmarks/bench_compile.py --repeat 9
+    python -m benchmarks.bench_compile                  # cold start, then 5 warm starts
+    python -m benchmarks.bench_compile --cache DIR      # warm starts only, on the cache in DIR
+    python -m benchmarks.bench_compile --repeat 9
 """
 
 from __future__ import annotations
@@ -32,10 +32,9 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from sweep.cluster import WORKER_THREAD_ENV  # stdlib only: no solver import here
 
-from sweep.cluster import WORKER_THREAD_ENV  # noqa: E402  (stdlib only: no solver import here)
+ROOT = Path(__file__).resolve().parents[1]
 
 CLOCK = time.CLOCK_MONOTONIC  # system-wide on Linux: comparable between parent and child
 

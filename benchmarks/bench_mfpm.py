@@ -9,7 +9,7 @@ table is searched once, as in the solver, where the skin makes searches rare).  
 build with no field, the cost of each further field, and the build that also keeps the Brookshaw
 pair lists (as the solver's full build at t^{n+1} does).
 
-    python benchmarks/bench_mfpm.py [resolution]
+    python -m benchmarks.bench_mfpm [resolution]
 """
 
 import math

@@ -1,7 +1,7 @@
 """Cost of the shell cornea against the membrane: one default run of each, interleaved (one core);
 the shell both rigid in transverse shear (Kirchhoff-Love) and shear-deformable (G_t 9.48 kPa).
 
-    python benchmarks/bench_shell.py [resolution] [--repeat N] [--threads N (default 1)]
+    python -m benchmarks.bench_shell [resolution] [--repeat N] [--threads N (default 1)]
 
 The three runs alternate N times in this process (kernels compiled or loaded first), so that the
 machine's drift (20-30 % from minute to minute here) hits both alike; the fastest and the median
@@ -10,16 +10,11 @@ the steps and the cornea sub-steps that explain it.  Aim: the shell at most 1.3 
 membrane at paper resolution.
 """
 
-import os
 import statistics
-import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-
-from run_default import parse_timing_args  # noqa: E402
-
-from airpuff_core import RunParams, simulate  # noqa: E402
+from airpuff_core import RunParams, simulate
+from benchmarks.run_default import parse_timing_args
 
 # the corneas compared: the paper's membrane, the Kirchhoff-Love shell and the shear-deformable
 # shell with the clinical preset's transverse shear modulus (docs/model.md section 3b)

@@ -23,10 +23,10 @@ point's netCDF file and Dask's bookkeeping); a mean point time that grows with t
 workers means the workers slow each other down (shared cores, caches or memory bandwidth, or
 other load on the machine).
 
-    python benchmarks/bench_sweep.py                # 1 worker, then 2
-    python benchmarks/bench_sweep.py --workers 2    # one configuration only
-    python benchmarks/bench_sweep.py --repeat 3     # 1, 2, 1, 2, 1, 2 workers; medians compared
-    python benchmarks/bench_sweep.py --points 8     # 8 points instead of 16
+    python -m benchmarks.bench_sweep                # 1 worker, then 2
+    python -m benchmarks.bench_sweep --workers 2    # one configuration only
+    python -m benchmarks.bench_sweep --repeat 3     # 1, 2, 1, 2, 1, 2 workers; medians compared
+    python -m benchmarks.bench_sweep --points 8     # 8 points instead of 16
 """
 
 from __future__ import annotations
@@ -37,14 +37,11 @@ import statistics
 import sys
 import tempfile
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from airpuff_core.params import RunParams  # noqa: E402
-from sweep.cluster import warm_workers  # noqa: E402
-from sweep.grid import SweepSpec  # noqa: E402
-from sweep.runner import run_sweep  # noqa: E402
+from airpuff_core.params import RunParams
+from sweep.cluster import warm_workers
+from sweep.grid import SweepSpec
+from sweep.runner import run_sweep
 
 
 def grid(t_end: float = 35.0, points: int = 16) -> SweepSpec:

@@ -1,7 +1,7 @@
 """Before/after timings in one process, alternating: another commit's solver against this tree's.
 
-    python benchmarks/interleaved.py REF run [coarse|paper|fine] [--repeat N] [--threads N]
-    python benchmarks/interleaved.py REF mfpm [--rounds N] [--threads N]
+    python -m benchmarks.interleaved REF run [coarse|paper|fine] [--repeat N] [--threads N]
+    python -m benchmarks.interleaved REF mfpm [--rounds N] [--threads N]
 
 REF is a git revision (``main``, a commit); its ``airpuff_core`` is exported with ``git archive``
 into a temporary directory under another package name, so both solvers live in this process and
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import io
 import json
 import statistics
@@ -31,7 +32,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 SHOWN = ("P1", "P2", "CH", "t_A1", "t_A2", "DA")
 
 
@@ -41,9 +41,13 @@ def import_revision(ref: str, into: Path):
                              check=True, capture_output=True).stdout
     with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
         tar.extractall(into, filter="data")
-    (into / "airpuff_core").rename(into / "airpuff_ref")
-    sys.path.insert(0, str(into))
-    return importlib.import_module("airpuff_ref")
+    package = into / "airpuff_core"
+    spec = importlib.util.spec_from_file_location("airpuff_ref", package / "__init__.py",
+                                                  submodule_search_locations=[str(package)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["airpuff_ref"] = module  # its relative imports resolve to airpuff_ref.*
+    spec.loader.exec_module(module)
+    return module
 
 
 def compare_runs(old, resolution, repeat, threads=1):

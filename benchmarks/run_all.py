@@ -4,8 +4,8 @@ The default runs are timed on one thread (the figure of one core) and on every t
 (what `airpuff run` uses); the fine run, the shell's cost and the cost against resolution as
 their docstrings say.
 
-    python benchmarks/run_all.py            # all
-    python benchmarks/run_all.py --quick    # skip the paper- and fine-resolution runs, the sweep
+    python -m benchmarks.run_all            # all
+    python -m benchmarks.run_all --quick    # skip the paper- and fine-resolution runs, the sweep
                                             # and the cost against resolution
 
 Timings on this machine vary by 20-30 % from minute to minute, so the runs are repeated and the
@@ -16,10 +16,7 @@ import os
 import platform
 import sys
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from benchmarks import (bench_compile, bench_mfpm, bench_shell, bench_sweep,  # noqa: E402
-                        run_default, scaling)
+from benchmarks import bench_compile, bench_mfpm, bench_shell, bench_sweep, run_default, scaling
 
 
 def main(argv):

@@ -1,6 +1,6 @@
 """Wall time and solver figures of one default run:
 
-    python benchmarks/run_default.py [resolution] [--repeat N] [--operator OPERATOR] [--threads N]
+    python -m benchmarks.run_default [resolution] [--repeat N] [--operator OPERATOR] [--threads N]
 
 With ``--repeat N`` the run is made N times in this process (the Numba kernels compiled or loaded
 before the first) and the fastest and the median wall time are printed, and the same of the

@@ -1,6 +1,6 @@
 """How the cost of a default run grows with the number of fluid nodes (one core):
 
-    python benchmarks/scaling.py [--repeat N] [--levels coarse,paper,fine] [--threads N]
+    python -m benchmarks.scaling [--repeat N] [--levels coarse,paper,fine] [--threads N]
 
 Each resolution's default run is timed (fastest of N, in this process, the kernels compiled or
 loaded before; the process's CPU time, which leaves out the time it waited for a core on a

@@ -13,7 +13,7 @@ os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
 # The tests' own runs use one thread: this process also starts LocalClusters, whose nannies set
 # NUMBA_NUM_THREADS=1 here whenever they (re)start a worker, and Numba refuses to compile once
 # that disagrees with a thread pool it has started (airpuff_core/threads.py).  The runs on
-# several threads are tested in a subprocess of their own (tests/test_threads.py).
+# several threads are tested in a subprocess of their own (tests/core/test_threads.py).
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 

@@ -175,7 +175,7 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     (serial or parallel, fresh or from the Numba cache), and the last bits of the consistent
     Laplacian differed between a run in a Dask worker and the same run in its client
     (measured).  Every sum runs in the order of the pairs, so the results are the same bit for
-    bit for any chunks, threads, process or cache (tests/test_threads.py).
+    bit for any chunks, threads, process or cache (tests/core/test_threads.py).
 
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
     b_ij = 2 A_j (-dW/dr) / r_ij = LAPLACIAN_SCALE A_j (1-q)^3 / H_ij^4 are also kept, node i's in

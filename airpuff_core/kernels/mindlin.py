@@ -22,7 +22,7 @@ so the resultants are the Fung N1, N2, the bending moments M = D (K + nu K') and
 shear force Q = S gamma [N/m].  For a wavenumber k the bending response D k^4 becomes
 D k^4 / (1 + D k^2 / S): a stiffness bounded by S k^2 instead of growing like k^4.  As S -> inf,
 gamma -> 0 and the Kirchhoff-Love shell is recovered (one-point integration of gamma leaves the
-thin limit free of locking; tests/test_mindlin.py).
+thin limit free of locking; tests/core/test_mindlin.py).
 
 Forces on the nodes are -dPi/dX (membrane as in ``kernels/membrane.py``; shear through
 dPi/dpsi_s = A0_s Q_s and dpsi_s/d(dx, dy) = (dy, -dx) / L^2, ``add_angle_forces``); the moments

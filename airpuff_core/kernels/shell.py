@@ -273,7 +273,7 @@ def advance_shell(X, Y, VX, VY, mass, phi, L0, S0, A0, psi_ref, dual_length, x_r
 
 # The highest bending mode of the discrete shell sits at the apex, whose cell is light (a disc of
 # radius L0_0 / 2): measured 1.20-1.21 times the interior Nyquist mode 4 / l^2 sqrt(D / (rho h)),
-# for 26-200 nodes and nu = 0-0.9 (tests/test_shell.py checks the bound on the eigenvalues).
+# for 26-200 nodes and nu = 0-0.9 (tests/core/test_shell.py checks the bound on the eigenvalues).
 APEX_MODE_FACTOR = 1.25
 
 
