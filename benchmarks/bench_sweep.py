@@ -10,12 +10,10 @@ process, starting the cluster, warming the workers) and the end after the last p
 point, and would hide the scaling of a short sweep.
 
 Same grid for 1 and 2 workers: 16 coarse points of 35 ms, the default run (E0 x IOP = 4 x 4;
-``--points 8``: 4 x 2), each measurement in a fresh output folder.  Points differ in cost (1.6-2.9
-s here), so at the end of a sweep one worker may idle while the other finishes its last point;
-that end effect is part of the figure.  It weighs less in a longer sweep: with 8 points it cost
-the 2-worker run 10-20 % (a worker busy only 80-89 % of the time; speed-up 1.80), with 16 points
-3-6 % (speed-up 1.98-2.04; measured 2026-11-30), and the sweeps this service runs have tens to
-hundreds of points.
+``--points 8``: 4 x 2), each measurement in a fresh output folder.  Points differ in cost, so at
+the end of a sweep one worker may idle while the other finishes its last point; that end effect
+is part of the figure.  It weighs less in a longer sweep (its share with 8 and with 16 points:
+docs/performance.md), and the sweeps this service runs have tens to hundreds of points.
 
 Per worker, the solver time of its points (``wall_s`` of the records) is summed: busy / steady
 close to 1 means the worker never waited for work (the rest, about 0.1 s a point, is writing the

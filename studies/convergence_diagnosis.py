@@ -8,8 +8,8 @@ The run is the solver's own (``CoupledModel`` stepped under the ``Recorder``, as
 does), so its metrics are those of ``airpuff run``.  Beside them it prints the second
 applanation found with other measures of the apex curvature, from the same steps:
 
-- ``fit``: the solver's measure (docs/model.md section 3: since issue 14 the even quartic over
-  0.6 mm, ``quart_0.6`` below);
+- ``fit``: the solver's measure (docs/model.md section 3: the even quartic over 0.6 mm,
+  ``quart_0.6`` below);
 - ``pair``: 2 (y0 - y1) / x1^2 from the apex and its neighbour (curvature at the apex, O(h^2));
 - ``quad_R``: least-squares y = c0 + c2 x^2 over the nodes with reference x <= R;
 - ``quart_R``: least-squares y = c0 + c2 x^2 + c4 x^4 over the same nodes;

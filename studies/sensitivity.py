@@ -56,7 +56,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "layout_polar": ("the paper's polar lattice", {"layout": "polar"}),
     # Fung exponent (default 240)
     "fung_k_0": ("Fung exponent 0 (Saint Venant-Kirchhoff)", {"fung_k": 0.0}),
-    "fung_k_1": ("Fung exponent 1 (the earlier provisional default)", {"fung_k": 1.0}),
+    "fung_k_1": ("Fung exponent 1", {"fung_k": 1.0}),
     "fung_k_10": ("Fung exponent 10", {"fung_k": 10.0}),
     "fung_k_100": ("Fung exponent 100", {"fung_k": 100.0}),
     "fung_k_1000": ("Fung exponent 1000", {"fung_k": 1000.0}),

@@ -1,5 +1,5 @@
 """The check behind the default time step (cfl = 0.6): default runs and five parameter corners at
-cfl 0.4 (the former default) and at the default, with the metrics side by side.
+cfl 0.4 (the smaller step, as the reference) and at the default, with the metrics side by side.
 
     python -m studies.time_step                       # coarse resolution, about 1 min
     python -m studies.time_step --resolution paper    # about 5 min
@@ -16,7 +16,7 @@ import time
 from airpuff_core import RunParams, SimulationError, simulate
 from airpuff_core.params import PARAMETERS
 
-FORMER_CFL = 0.4
+REFERENCE_CFL = 0.4
 CASES = [
     {},
     {"E0": 0.2, "IOP": 8.0},
@@ -43,11 +43,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     default_cfl = PARAMETERS["cfl"].default
     worst = {k: 0.0 for k, _ in METRICS}
-    print(f"resolution {args.resolution}: cfl {FORMER_CFL} against the default {default_cfl}")
+    print(f"resolution {args.resolution}: cfl {REFERENCE_CFL} against the default {default_cfl}")
     for case in CASES:
         label = ", ".join(f"{k}={v:g}" for k, v in case.items()) or "default"
         (a, err_a, wall_a), (b, err_b, wall_b) = (run(args.resolution, c, case)
-                                                  for c in (FORMER_CFL, default_cfl))
+                                                  for c in (REFERENCE_CFL, default_cfl))
         if err_a or err_b:
             print(f"  {label}: FAILED ({err_a or ''} {err_b or ''})")
             continue

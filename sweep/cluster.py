@@ -24,8 +24,8 @@ from .numba_cache import shared_numba_cache_dir, warmup_params
 # thread, but not Numba's (dask/distributed#9075), hence NUMBA_NUM_THREADS.  The Nanny applies
 # this ``env`` inside the new process after distributed has imported numpy, so it reaches Numba
 # (imported later, with the solver) but would come too late for the BLAS pool; that one is pinned
-# by the Nanny's ``pre-spawn-environ`` (measured: a LocalCluster worker runs 3 OS threads, Numba
-# with 1 thread).  ``check_workers`` reports a worker whose variables or whose Numba say otherwise.
+# by the Nanny's ``pre-spawn-environ`` (a LocalCluster worker then runs 3 OS threads, Numba's
+# pool 1).  ``check_workers`` reports a worker whose variables or whose Numba say otherwise.
 WORKER_THREAD_ENV = {
     "NUMBA_NUM_THREADS": "1",
     "OMP_NUM_THREADS": "1",
@@ -35,8 +35,8 @@ WORKER_THREAD_ENV = {
 
 # Dask settings of a LocalCluster.  Every Dask server (the scheduler and the nannies, in this
 # process, and each worker) wakes up at ``tick.interval`` only to measure how long its event loop
-# was blocked, for a warning after seconds.  At the default 20 ms this process alone used 7 % of a
-# core during a sweep, 3.6 % at 500 ms (measured, 1 worker); with as many workers as cores that
+# was blocked, for a warning after seconds.  The default 20 ms costs this process twice the CPU
+# of 500 ms (docs/performance.md, "What made the difference"); with as many workers as cores that
 # CPU is taken from the workers.
 LOCAL_CLUSTER_CONFIG = {"distributed.admin.tick.interval": "500ms"}
 

@@ -4,7 +4,7 @@ Everything here is in the user units of ``airpuff run`` (MPa, mmHg, mm, kPa; see
 ``airpuff_core.params.PARAMETERS``).  This module only describes *which* runs a sweep consists of;
 running them is ``sweep.runner``'s job and storing them ``sweep.storage``'s.
 
-Interface used by the HTTP API (issue 5) -- keep these names:
+Interface the HTTP API uses -- keep these names:
 
 * ``parse_axis(name, text) -> list[float]``
 * ``SweepSpec(E0=[...], IOP=[...], thickness=[...], pmax=[...], options={...})`` with

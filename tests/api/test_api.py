@@ -19,6 +19,8 @@ from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, PRESET_PARA
 from airpuff_core.result import METRICS
 from tests.api.support import ServerProcess, post_at_once
 
+pytestmark = pytest.mark.service
+
 MAX_POINTS = 50  # this server's --max-points: small, so schemathesis cannot queue big grids
 
 
@@ -267,6 +269,7 @@ def test_busy_port_is_reported(tmp_path, server):
     assert p.returncode == 1 and "cannot listen" in p.stderr, p.stderr
 
 
+@pytest.mark.slow
 def test_schemathesis_finds_no_server_error(server, tmp_path):
     """Property-based run over the whole OpenAPI schema (bounded in time)."""
     exe = [sys.executable, "-m", "schemathesis.cli"]

@@ -18,6 +18,8 @@ from airpuff_core.result import METRICS
 from sweep.storage import failed_path, point_key, point_path
 from tests.api.support import ServerProcess, post_at_once, submit, wait_job
 
+pytestmark = [pytest.mark.service, pytest.mark.cluster]
+
 # Short coarse runs: about a second or two of solver time per point.
 OPTIONS = {"resolution": "coarse", "t_end": 1.0}
 

@@ -22,6 +22,8 @@ from tests.api.test_api_jobs import check_against_files, file_ids
 from api.db import SCHEMA_VERSION
 from sweep.storage import point_path
 
+pytestmark = [pytest.mark.service, pytest.mark.cluster, pytest.mark.slow]
+
 # points of about 0.5 s each: long enough that the points still to run when the server is
 # stopped cannot all finish during its shutdown (at 1 ms the job once finished there)
 BODY = {"E0": [0.3, 0.45, 0.6], "IOP": [12.0, 20.0], "thickness": [0.5], "pmax": [10.0],

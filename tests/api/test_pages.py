@@ -15,6 +15,8 @@ import pytest
 
 from tests.api.support import ServerProcess
 
+pytestmark = pytest.mark.service
+
 TOKEN = "pages-token"
 FIELD_ERROR = re.compile(r'<(?:div|p) class="(?:field-)?error" id="error-([\w]+)">(.*?)</(?:div|p)>')
 

@@ -45,6 +45,8 @@ from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support import expected_conditions  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 
+pytestmark = [pytest.mark.service, pytest.mark.cluster, pytest.mark.browser]
+
 TOKEN = "page&test=token+/%42"  # characters that need URL encoding in the form
 # A coarse sweep whose runs are short but still applanate twice: the jet peaks at 7 ms and the
 # runs end at 15 ms, after the second applanation (about 10 ms).

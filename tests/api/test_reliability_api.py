@@ -1,4 +1,4 @@
-"""Stored results that can be trusted, on the `airpuff serve` side (issue 17).
+"""Stored results that can be trusted, on the `airpuff serve` side.
 
 A real `airpuff serve` (uvicorn on a loopback port) with a Dask cluster of two worker processes
 and the real solver (coarse, t_end 1 ms); point files damaged the way a crash or a full disk
@@ -24,6 +24,8 @@ from airpuff_core.provenance import model_version
 from api.runner import INFRASTRUCTURE_RETRIES
 from sweep.storage import DAMAGED_SUBDIR, point_key, point_path
 from tests.api.support import REPO, ServerProcess, submit, wait_job
+
+pytestmark = pytest.mark.service
 
 OPTIONS = {"resolution": "coarse", "t_end": 1.0}
 BASE = {"IOP": [15.0], "thickness": [0.5], "pmax": [10.0], **OPTIONS}
@@ -54,6 +56,7 @@ def submissions(server, key) -> int:
         con.close()
 
 
+@pytest.mark.cluster
 def test_damaged_point_files_are_set_aside_and_recomputed(client, server, tmp_path):
     """Items 1 and 2 (and the provenance of item 3 in the downloaded dataset): a recorded point
     file truncated to half, and garbage under the key of a point not yet recorded, are moved
@@ -94,6 +97,7 @@ def test_damaged_point_files_are_set_aside_and_recomputed(client, server, tmp_pa
     assert job3["status"] == "done" and job3["points_reused"] == 2, job3
 
 
+@pytest.mark.cluster
 def test_a_file_damaged_while_its_job_runs_is_recomputed_when_combining(client, server):
     """Item 2: a stored point passes the check when its job starts, then its file is truncated
     while the job's other points compute; combining finds it, sets it aside and computes it
@@ -114,6 +118,7 @@ def test_a_file_damaged_while_its_job_runs_is_recomputed_when_combining(client, 
     assert key_of(body, 0.4) in moved
 
 
+@pytest.mark.cluster
 def test_model_and_infrastructure_failures(client, server):
     """Item 6: a write error of the server (a directory where the point file goes: an OSError
     as from a full disk) is retried automatically, then recorded, and computed again by the
@@ -144,6 +149,7 @@ def test_model_and_infrastructure_failures(client, server):
         assert submissions(server, model_key) == runs
 
 
+@pytest.mark.cluster
 def test_job_error_carries_no_server_path_and_delete_removes_ended_jobs(client, server):
     """Item 7: a job whose combined file cannot be written fails with an error that names no
     path of the server; DELETE removes an ended job with its folder (and still cancels a
@@ -172,6 +178,7 @@ def test_job_error_carries_no_server_path_and_delete_removes_ended_jobs(client, 
     assert client.delete(f"/sweeps/{queued}").status_code == 204
 
 
+@pytest.mark.cluster
 def test_stale_temporary_files_are_removed_at_start_up(server):
     """Item 7: a kill during a write leaves `.<name>.<random>.tmp`; the next server removes
     them (it holds runner.lock, so no other writer exists)."""

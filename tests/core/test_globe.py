@@ -105,6 +105,7 @@ def test_rest_with_compliant_globe_stays_still():
     assert np.max(np.abs(result.histories["wall_volume_change"])) < 1e-9  # uL
 
 
+@pytest.mark.slow
 def test_doubling_the_sound_speed_barely_moves_p1_p2():
     """With the compliant globe the chamber's stiffness is the globe's: doubling the artificial
     sound speed (c0 and c_slope of the running-maximum rule) moves P1 and P2 by less than

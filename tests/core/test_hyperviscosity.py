@@ -117,8 +117,8 @@ def test_self_adjoint_and_negative_semi_definite(model, parity):
 
 
 @pytest.mark.parametrize("parity", [1.0, -1.0])
-def test_with_brookshaw_coefficients_it_is_the_former_l_cubed(parity):
-    """K = L makes K^* = L (L is self-adjoint in the weight), so K^* L K = L^3, the default
+def test_with_brookshaw_coefficients_it_is_l_cubed(parity):
+    """K = L makes K^* = L (L is self-adjoint in the weight), so K^* L K = L^3, the `brookshaw`
     operator: a check of the adjoint's code against three plain Brookshaw passes, on a random
     field (zero on the axis for the odd parity, as v_x is)."""
     model = CoupledModel(RunParams(resolution="coarse", hyperviscosity_operator="consistent"))

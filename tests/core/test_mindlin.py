@@ -182,6 +182,7 @@ def test_rest_state_stays_still():
     assert np.max(np.abs(moment - moment[0])) < 1e-6 * abs(moment[0]) + 1e-15
 
 
+@pytest.mark.slow
 def test_energy_budget_closes_with_shear():
     """Full clinical run with the shear-deformable shell at paper resolution (about 20 s): the
     budget (with the directors' kinetic energy, the shear energy and the viscous dissipation of Q)

@@ -159,6 +159,7 @@ np.savez(sys.argv[1], **build_and_operator_outputs())
 """
 
 
+@pytest.mark.slow
 def test_fresh_compilation_gives_the_cached_bits(tmp_path):
     """The kernels compiled afresh (a process with an empty Numba cache, as a new Dask worker or
     a fresh clone), the same kernels loaded from that cache by a second process, and this
@@ -200,6 +201,7 @@ sys.exit(1 if differ else 0)
 """
 
 
+@pytest.mark.slow
 def test_a_run_does_not_depend_on_the_threads():
     """A coarse clinical run (shear shell, viscoelasticity, compliant globe, consistent
     hyperviscosity) on one thread and on two: every history, snapshot and metric the same.  In a

@@ -24,6 +24,7 @@ def test_safety_constant_within_the_forward_euler_limit(component):
     assert 0.1 < C_fe < 2.0
 
 
+@pytest.mark.slow
 def test_halving_the_step_at_a_large_viscosity_moves_no_metric():
     """mu = 2.5 Pa s (3300 times water): the viscous limit sets every step.  Halving both the
     acoustic and the viscous limit moves no metric beyond 0.05 mmHg / 0.05 ms / 0.005 mm."""

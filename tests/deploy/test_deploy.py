@@ -163,6 +163,9 @@ class Proc:
 
 
 # -- the tests -----------------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.service
+@pytest.mark.cluster
 def test_compose_topology_as_local_processes(tmp_path):
     """scheduler + 2 workers (each in its own working directory) + `airpuff serve --scheduler`,
     as compose.yaml runs them; a sweep over HTTP; its metrics match the API's point files."""
@@ -351,6 +354,9 @@ def test_save_point_refuses_a_result_without_a_netcdf_file(tmp_path):
     assert "pid" not in failed_path(tmp_path, "k2").read_text()
 
 
+@pytest.mark.slow
+@pytest.mark.service
+@pytest.mark.cluster
 def test_a_point_file_whose_record_was_lost_is_read_back_not_recomputed(tmp_path):
     """The API writes a point file, then its record; a crash in between leaves a file without a
     record.  The next runner takes the file as the point's result instead of recomputing it."""

@@ -15,6 +15,7 @@ def files(tmp_path_factory):
     return write_files(tmp_path_factory.mktemp("cf"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["run", "point", "sweep"])
 def test_compliance_checker_finds_no_error(files, kind):
     found = cf_findings(files[kind])
@@ -42,7 +43,7 @@ def test_cf_points_checked_directly(files, kind):
             if "units" in var.ncattrs():
                 cf_units.Unit(var.getncattr("units"))  # raises ValueError if not UDUNITS
     with pytest.raises(ValueError):
-        cf_units.Unit("deg")  # the check can fail: the unit the files used to carry
+        cf_units.Unit("deg")  # the check can fail: a common spelling that is not UDUNITS
 
 
 def test_time_reads_back_in_milliseconds(files):

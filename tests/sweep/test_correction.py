@@ -232,6 +232,7 @@ def coarse_sweep(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.cluster
 @pytest.mark.parametrize("instrument, header, row", [
     ("ora", "id,P1,P2,CCT", "eye1,{P1},{P2},{CCT}"),
     ("corvis", "id,IOPnc,CCT,DA,DA_sigma", "eye1,{P1},{CCT},{DA},0.02"),
@@ -273,6 +274,7 @@ def test_real_coarse_sweep_fit_and_apply_end_to_end(coarse_sweep, tmp_path, inst
 
 
 @pytest.mark.slow
+@pytest.mark.cluster
 def test_real_coarse_sweep_sensitivity(coarse_sweep):
     proc = airpuff("correct", "sensitivity", "--sweep", str(coarse_sweep), "--metrics",
                    "P1,P2,DA", "--samples", "256", "--json", timeout=300)

@@ -1,4 +1,4 @@
-"""Issue 8: identify IOP and E0 from a measurement, on a real sweep (no mocks).
+"""Identify IOP and E0 from a measurement, on a real sweep (no mocks).
 
 One real coarse sweep (E0 0.3, 0.5, 0.7 MPa x IOP 10, 14, 18, 22 mmHg; thickness 0.5 mm, pmax
 10 kPa; 12 points on 2 Dask workers) and five direct solver runs at parameter values off the grid
@@ -28,6 +28,8 @@ from sweep.runner import run_sweep
 from tests.conftest import airpuff
 
 from tests.api.support import ServerProcess, wait_job
+
+pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
 GRID = {"E0": [0.3, 0.5, 0.7], "IOP": [10.0, 14.0, 18.0, 22.0], "thickness": [0.5],
         "pmax": [10.0], "options": {"resolution": "coarse"}}
@@ -143,6 +145,7 @@ def test_refine_with_solver_runs(table, truths):
     assert abs(ref.IOP - iop) <= IOP_TOL and abs(ref.E0 - e0) <= E0_TOL_ALL, ref.to_dict()
 
 
+@pytest.mark.service
 def test_http_identify_on_a_finished_job(id_sweep, truths, tmp_path):
     """The real server (1 worker): the job's points are already on disk and are reused."""
     _, data = id_sweep

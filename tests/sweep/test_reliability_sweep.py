@@ -1,4 +1,4 @@
-"""Stored results that can be trusted, on the `airpuff sweep` side (issue 17): damaged point files,
+"""Stored results that can be trusted, on the `airpuff sweep` side: damaged point files,
 the model version in the point key, provenance, failures of the model and of the infrastructure,
 stale temporary files.  A real LocalCluster of two worker processes, the real solver (coarse,
 t_end 1 ms), real files damaged the way a crash or a full disk leaves them.
@@ -31,6 +31,8 @@ def damaged_records(points_dir: Path) -> list[dict]:
     return [json.loads(p.read_text()) for p in sorted((points_dir / DAMAGED_SUBDIR).glob("*.json"))]
 
 
+@pytest.mark.slow
+@pytest.mark.cluster
 def test_unreadable_point_files_are_moved_aside_and_recomputed(dask_client, tmp_path):
     """Items 1 and 2: a truncated point file and a garbage failure record count as missing, also
     when the damage happens after the stored points were read (found when combining)."""
@@ -89,6 +91,7 @@ def test_model_version_hashes_code_not_comments(tmp_path):
     assert model_version_of(copy) not in (model_version(), changed)
 
 
+@pytest.mark.cluster
 def test_a_stored_point_of_another_model_version_is_not_reused(dask_client, tmp_path):
     """Item 3: a point file whose model version is not this one (here: edited, with a DA of
     9.99) is moved aside and recomputed; files carry their provenance, and sweep.nc each
@@ -125,6 +128,7 @@ def test_a_stored_point_of_another_model_version_is_not_reused(dask_client, tmp_
         assert combined.attrs["point_files"] == "points/<point_key>.nc"
 
 
+@pytest.mark.cluster
 def test_failures_of_the_infrastructure_are_rerun_those_of_the_model_kept(dask_client, tmp_path):
     """Item 6: a write error (a directory where the point file should go: an OSError on the
     rename, as a full disk gives) is retried automatically and never reused; the solver's own
@@ -154,6 +158,7 @@ def test_failures_of_the_infrastructure_are_rerun_those_of_the_model_kept(dask_c
     assert (third.computed, third.reused, third.failed) == (1, 1, 1)  # asked: run again
 
 
+@pytest.mark.cluster
 def test_combining_clears_stale_temporary_files(dask_client, tmp_path):
     """Item 7: a kill during combining leaves `.sweep.nc.*.tmp`; the next combine removes it
     (if older than any combine takes), and a failed write leaves none."""

@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import xarray as xr
 
 from sweep.grid import SweepSpec
@@ -20,12 +21,15 @@ from sweep.storage import point_key, point_path
 
 from tests.conftest import airpuff_argv
 
+pytestmark = pytest.mark.cluster
+
 # Points of 12 ms (about a second each at coarse resolution): with 3 ms points the whole sweep
 # could finish between the first stored file and the Ctrl-C under a loaded machine.
 ARGS = ["--E0", "0.4,0.6", "--IOP", "12:20:3", "--resolution", "coarse", "--t-end", "12",
         "--workers", "2"]
 
 
+@pytest.mark.slow
 def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
     out = tmp_path / "sweep"
     spec = SweepSpec(E0=[0.4, 0.6], IOP=[12.0, 16.0, 20.0],
@@ -75,6 +79,7 @@ def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
         assert any(line.split()[:2] == [f"{p.E0:g}", f"{p.IOP:g}"] for line in again.stdout.splitlines())
 
 
+@pytest.mark.slow
 def test_demo_and_analysis_scripts_on_a_stored_sweep(tmp_path):
     """examples/analyze_sweep.py reads a sweep.nc with plain xarray and writes its figure."""
     out = tmp_path / "s"
@@ -96,6 +101,7 @@ def test_demo_and_analysis_scripts_on_a_stored_sweep(tmp_path):
     assert png.stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_sweep_with_the_shell_cornea_keys_and_records_it(tmp_path):
     """`--cornea shell` reaches every point: its key (beside the membrane's, not over it), its
     netCDF and the sweep's run options; `identify --refine` would rerun with it."""

@@ -32,6 +32,8 @@ from sweep.grid import SweepSpec
 from sweep.runner import run_sweep
 from sweep.storage import failed_path, point_key, point_path
 
+pytestmark = pytest.mark.cluster
+
 SHORT = {"resolution": "coarse", "t_end": 3.0}  # ms
 
 
