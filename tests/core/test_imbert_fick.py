@@ -4,7 +4,7 @@ equal the fluid pressure at the apex within 0.15 mmHg at coarse resolution.
 The apex curvature is the even quartic through the three nodes within 0.6 mm at coarse resolution
 (docs/model.md section 3); its zero differs from the discrete apex balance's (the apex-pair
 curvature) by O(h^2): measured 0.108 (A1) and 0.100 mmHg (A2) at coarse, 0.015 and 0.008 mmHg at
-paper resolution (a paper run takes minutes, too long for the suite)."""
+paper resolution; the test runs at coarse resolution only."""
 
 import math
 
