@@ -255,16 +255,17 @@ def end_job(con, job_id: str, status: str, error: str | None) -> None:
                     "WHERE id = ? AND status = 'running'", (status, error, now(), job_id))
 
 
-def job_seq(con, job_id: str) -> int:
-    """Submission order of a job (0 if unknown): older jobs get higher Dask priority."""
-    row = con.execute("SELECT seq FROM jobs WHERE id = ?", (job_id,)).fetchone()
-    return row[0] if row else 0
-
-
-def pending_job_points(con, job_id: str) -> list[sqlite3.Row]:
-    """(idx, key) of the pending points of a job, in grid order."""
+def pending_job_points(con, job_id: str, limit: int = -1) -> list[sqlite3.Row]:
+    """(idx, key) of the pending points of a job, in grid order (the first ``limit`` of them;
+    all if negative)."""
     return con.execute("SELECT idx, key FROM job_points WHERE job_id = ? AND status = 'pending' "
-                       "ORDER BY idx", (job_id,)).fetchall()
+                       "ORDER BY idx LIMIT ?", (job_id, limit)).fetchall()
+
+
+def running_jobs(con) -> list[sqlite3.Row]:
+    """(id, spec_json, retry_failed) of the running jobs, oldest first."""
+    return con.execute("SELECT id, spec_json, retry_failed FROM jobs WHERE status = 'running' "
+                       "ORDER BY seq").fetchall()
 
 
 def set_job_point_key(con, job_id: str, idx: int, key: str) -> None:
@@ -318,24 +319,23 @@ def upsert_pending_points(con, keys: Iterable[str], submitted: bool) -> None:
             [(k, int(submitted), int(submitted)) for k in keys])
 
 
-def record_point_results(con, results: Iterable[tuple[str, str | None, dict]]) -> None:
+def record_point_results(con, results: Iterable[tuple[str, str | None, Any]]) -> None:
     """The results of points, in one transaction: ``(key, id of the job that submitted it,
-    record)``.  The ``points`` row gets the record; every running job waiting for the key gets
-    the status and message (``reused`` unless it is the submitting job and the point was
-    computed)."""
+    record)`` with ``record`` a ``sweep.record.PointRecord``.  The ``points`` row gets the
+    record; every running job waiting for the key gets the status and message (``reused``
+    unless it is the submitting job and the point was computed)."""
     with write(con):
         for key, job_id, rec in results:
-            computed = bool(rec.get("computed", True))
+            computed = bool(rec.computed)
             con.execute(
                 "UPDATE points SET status = ?, message = ?, metrics_json = ? WHERE key = ?",
-                (rec["status"], rec.get("message") or None, json.dumps(rec.get("metrics") or {}),
-                 key))
+                (rec.status, rec.message or None, json.dumps(rec.metrics or {}), key))
             con.execute(
                 "UPDATE job_points SET status = ?, message = ?, "
                 "reused = CASE WHEN job_id = ? AND ? THEN 0 ELSE 1 END "
                 "WHERE key = ? AND status = 'pending' AND job_id IN "
                 "(SELECT id FROM jobs WHERE status = 'running')",
-                (rec["status"], rec.get("message") or None, job_id, computed, key))
+                (rec.status, rec.message or None, job_id, computed, key))
 
 
 def running_jobs_without_pending_points(con) -> list[sqlite3.Row]:

@@ -1,7 +1,7 @@
 """The figures of a job's page, drawn by the server as PNG from the stored results.
 
 - ``ora-<metric>``: an ORA metric (P1, P2, CH, IOPg, IOPcc) against IOP, one line per E0, from
-  the job's point records in the database (``api.routes.point_records``);
+  the job's point records in the database (``api.jobs.point_records``);
 - ``heatmap-<metric>``: DA and CH over the (IOP, E0) grid, when it has at least two values of each;
 - ``history-<index>``: apex displacement and jet pressure against time of one point, from the
   point's own netCDF file.
@@ -147,7 +147,7 @@ def cache_path(settings: Settings, job_id: str, name: str) -> Path:
 
 def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, Any]],
                name: str) -> tuple[bytes, bool]:
-    """(PNG, final) of figure ``name`` of ``job`` (``api.routes.job_info``); ``final`` says the
+    """(PNG, final) of figure ``name`` of ``job`` (``api.jobs.job_info``); ``final`` says the
     figure will not change (it was read from or written to the cache)."""
     path = cache_path(settings, job["id"], name)
     if name.startswith("history-"):

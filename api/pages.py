@@ -6,7 +6,7 @@
     GET  /new, POST /new                the sweep form (validated by the POST /sweeps schema)
     GET  /login, POST /login, POST /logout   the token, when AIRPUFF_API_TOKEN is set
 
-The pages read and submit jobs through the functions behind the JSON endpoints (``api.routes``)
+The pages read and submit jobs through the jobs layer (``api.jobs``) that the JSON endpoints use,
 and link to the JSON endpoints for the data.  With a token set, every page needs the session
 cookie of ``POST /login`` (see ``api.auth``); without it a page redirects to the login form.
 ``api.app.RequestGuard`` checks that, before a body is read, for the paths ``is_page`` names.
@@ -28,7 +28,7 @@ from starlette.concurrency import run_in_threadpool
 from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, SWEPT
 from airpuff_core.result import METRICS
 
-from . import auth, db, figures, routes, sweep_form
+from . import auth, db, figures, jobs, sweep_form
 from .html import badge, esc, number, page, progress, table, watch_state, when
 from .settings import Settings
 from .status import ACTIVE_JOB_STATUSES
@@ -132,10 +132,10 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
     # -- jobs ------------------------------------------------------------------------------------
 
     @r.get("/", response_class=HTMLResponse)
-    def job_list(con: sqlite3.Connection = Depends(routes.get_db)):
+    def job_list(con: sqlite3.Connection = Depends(jobs.get_db)):
         rows = db.list_jobs(con, LIST_LIMIT, 0)
         total = db.count_jobs(con)
-        infos = [routes.job_info(row) for row in rows]
+        infos = [jobs.job_info(row) for row in rows]
         cells = []
         for job in infos:
             base = f"/sweeps/{job['id']}"
@@ -167,11 +167,11 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
         row = db.get_job(con, job_id)
         if row is None:
             return None
-        return routes.job_info(row), routes.point_records(con, job_id)
+        return jobs.job_info(row), jobs.point_records(con, job_id)
 
     @r.get("/jobs/{job_id}", response_class=HTMLResponse)
     def job_page(job_id: str, point: int | None = None,
-                 con: sqlite3.Connection = Depends(routes.get_db)):
+                 con: sqlite3.Connection = Depends(jobs.get_db)):
         loaded = load(con, job_id)
         if loaded is None:
             return not_found(job_id)
@@ -183,7 +183,7 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
         return html(f"job {job['id'][:8]}", body, watch=watch)
 
     @r.get("/jobs/{job_id}/figures/{name}.png")
-    def job_figure(job_id: str, name: str, con: sqlite3.Connection = Depends(routes.get_db)):
+    def job_figure(job_id: str, name: str, con: sqlite3.Connection = Depends(jobs.get_db)):
         loaded = load(con, job_id)
         if loaded is None:
             return not_found(job_id)
@@ -233,7 +233,7 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
             if not errors:
                 try:
                     with connect() as con:
-                        return routes.create_job(con, settings, values)[0]
+                        return jobs.create_job(con, settings, values)[0]
                 except RequestValidationError as exc:
                     problems = [describe(e) for e in exc.errors()]
         for p in problems:

@@ -1,8 +1,9 @@
 """The routes of the HTTP API, on one ``APIRouter`` (``api.app`` mounts it).
 
 Every handler only reads the job database (``api.db``), except ``POST /sweeps``, which stores a
-new job, and ``DELETE /sweeps/{id}``, which cancels a job or removes an ended one; the job runner (``api.runner``)
-does the work.  The handlers find the service's ``Settings`` and runner on ``request.app.state``.
+new job, and ``DELETE /sweeps/{id}``, which cancels a job or removes an ended one, both through
+the jobs layer (``api.jobs``, which the pages use too); the job runner (``api.runner``) does the
+work.  The handlers find the service's ``Settings`` and runner on ``request.app.state``.
 ``POST /sweeps`` validates its body once, at this edge (the request model of ``api.schemas``,
 generated from the parameter table, then the grid as a whole by ``SweepSpec.validated_points``), and
 computes each point's key once; the rest of the system takes both as given.
@@ -11,41 +12,19 @@ computes each point's key once; the rest of the system takes both as given.
 # No `from __future__ import annotations`: FastAPI reads the handlers' annotations, and the body
 # model of POST /sweeps is a local of make_submit, which a string annotation could not resolve.
 import json
-import shutil
 import sqlite3
-import uuid
-from typing import Any, Iterator, Optional
+from typing import Optional
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
-from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import FileResponse, JSONResponse
 
 from airpuff_core import __version__
-from airpuff_core.params import SWEPT, ParameterError
-from airpuff_core.result import METRICS
-from sweep.grid import GRID_FIELD, SweepSpec, check_grid_size
 from sweep.identification import MEASURABLE, IdentifyError, SweepTable, identify
-from sweep.storage import point_key
 
-from . import db, schemas
+from . import db, jobs, schemas
+from .jobs import create_job, get_db, job_info, point_records, problem_422
 from .settings import Settings
-from .status import ACTIVE_JOB_STATUSES
-
-
-def problem_422(loc: list, field: str, msg: str,
-                typ: str = "value_error") -> RequestValidationError:
-    """A 422 whose detail names the offending ``field`` (rendered by ``api.app``)."""
-    return RequestValidationError([{"loc": loc, "field": field, "msg": msg, "type": typ}])
-
-
-def get_db(request: Request) -> Iterator[sqlite3.Connection]:
-    """A connection to the job database for the length of one request."""
-    con = db.connect(request.app.state.settings.db_path)
-    try:
-        yield con
-    finally:
-        con.close()
 
 
 def job_or_404(con, job_id: str) -> sqlite3.Row:
@@ -53,23 +32,6 @@ def job_or_404(con, job_id: str) -> sqlite3.Row:
     if row is None:
         raise HTTPException(404, f"no sweep job with id {job_id!r}")
     return row
-
-
-def job_info(row: sqlite3.Row) -> dict[str, Any]:
-    """A job row as ``GET /sweeps/{id}`` reports it (``schemas.JobInfo``)."""
-    spec = json.loads(row["spec_json"])
-    request = {name: spec[name] for name in SWEPT}
-    request.update(spec.get("options", {}))
-    base = f"/sweeps/{row['id']}"
-    return {
-        "id": row["id"], "status": row["status"], "points_total": row["n_points"],
-        "points_done": row["n_ok"], "points_failed": row["n_failed"],
-        "points_reused": row["n_reused"],
-        "created_at": db.iso(row["created_at"]), "started_at": db.iso(row["started_at"]),
-        "finished_at": db.iso(row["finished_at"]), "error": row["error"],
-        "retry_failed": bool(row["retry_failed"]), "request": request,
-        "links": {"self": base, "metrics": base + "/metrics", "dataset": base + "/dataset"},
-    }
 
 
 # -- routes ---------------------------------------------------------------------------------------
@@ -80,30 +42,6 @@ def health(request: Request):
         return {"status": "ok", "version": __version__, "runner": "disabled"}
     return {"status": "ok", "version": __version__, "runner": runner.state,
             "runner_error": runner.error, "workers": runner.n_workers}
-
-
-def create_job(con: sqlite3.Connection, settings: Settings,
-               values: dict[str, Any]) -> tuple[str, int]:
-    """Store a queued job for the request ``values`` (a ``SweepRequest`` validated by the schema,
-    as a dict); returns (job id, number of points).  Raises a 422 if the grid is larger than
-    ``settings.max_points`` or the solver rejects a combination of parameters.  ``POST /sweeps``
-    and the pages' sweep form (``api.pages``) both submit through here."""
-    values = dict(values)
-    retry_failed = values.pop("retry_failed", False)
-    axes = {name: values.pop(name) for name in SWEPT}
-    try:
-        check_grid_size({name: len(axes[name]) for name in SWEPT}, settings.max_points)
-    except ParameterError as err:
-        raise problem_422(["body"], GRID_FIELD, str(err), "grid_too_large") from None
-    try:
-        spec = SweepSpec(**axes, options=values)
-        points = spec.validated_points()
-    except ParameterError as err:
-        raise problem_422(["body", err.name], err.name, str(err)) from None
-    job_id = uuid.uuid4().hex
-    rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
-    db.insert_job(con, job_id, spec.to_dict(), rows, retry_failed)
-    return job_id, len(rows)
 
 
 def make_submit(SweepRequest):  # noqa: N803 - a model class
@@ -134,26 +72,6 @@ def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
     return job_info(job_or_404(con, job_id))
 
 
-def point_records(con: sqlite3.Connection, job_id: str) -> list[dict[str, Any]]:
-    """The points of a job as ``GET /sweeps/{id}/metrics`` reports them (``schemas.PointRecord``):
-    index, key, the four swept values, status, message, reused and every metric (None where
-    missing).  The pages (``api.pages``) show the same records; ``POST /identify``
-    interpolates in them."""
-    points = []
-    for p in db.job_points(con, job_id):
-        rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
-        for name in SWEPT:
-            rec[name] = p[name]
-        rec["status"] = p["status"]
-        rec["message"] = p["message"]
-        rec["reused"] = bool(p["reused"])
-        m = db.loads(p["metrics_json"]) if p["status"] == "ok" else None
-        for name in METRICS:
-            rec[name] = (m or {}).get(name)
-        points.append(rec)
-    return points
-
-
 def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
     row = job_or_404(con, job_id)
     return {"id": job_id, "status": row["status"], "units": schemas.units(),
@@ -178,25 +96,22 @@ def get_dataset(job_id: str, request: Request, con: sqlite3.Connection = Depends
 
 def cancel_or_delete(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
     """A queued or running job is cancelled (200, the job); an ended one (done, failed,
-    cancelled) is removed with its folder, its combined dataset (204).  The point files stay:
-    they are shared by all jobs."""
-    settings = request.app.state.settings
+    cancelled) is removed with its folder, its combined dataset (204)."""
     row = job_or_404(con, job_id)
-    if row["status"] in ACTIVE_JOB_STATUSES:
-        cancelled = db.cancel_job(con, job_id)
-        runner = request.app.state.runner
-        if runner is not None:
-            runner.wake()
-        row = job_or_404(con, job_id)
-        if cancelled:
-            return job_info(row)
-        raise HTTPException(409, f"job {job_id} ended ({row['status']}) while it was being "
-                                 "cancelled; DELETE it again to remove it")
-    if not db.delete_job(con, row["id"]):  # removed by a DELETE at the same moment
-        raise HTTPException(404, f"no sweep job with id {job_id!r}")
-    # The folder comes from the job's own id as stored in the database, never from the request.
-    shutil.rmtree(settings.jobs_dir / row["id"], ignore_errors=True)
-    return Response(status_code=204)
+    try:
+        cancelled = jobs.cancel_or_remove(con, request.app.state.settings, row)
+    except jobs.JobEnded:
+        raise HTTPException(409, f"job {job_id} ended ({job_or_404(con, job_id)['status']}) "
+                                 "while it was being cancelled; DELETE it again to remove "
+                                 "it") from None
+    except KeyError:
+        raise HTTPException(404, f"no sweep job with id {job_id!r}") from None
+    if not cancelled:
+        return Response(status_code=204)
+    runner = request.app.state.runner
+    if runner is not None:
+        runner.wake()
+    return job_info(job_or_404(con, job_id))
 
 
 def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = Depends(get_db)):

@@ -1,22 +1,22 @@
 """The job runner: a thread that owns the Dask client and moves jobs through their states.
 
 The states and transitions are listed in ``api.status``; every SQL statement is a named function
-of ``api.db``.  One loop (period ``Settings.poll_interval``, woken early by the API on submit and
-cancel), one method per step:
+of ``api.db``; how points are computed (submission a window at a time, storage of the results,
+retries, recomputes) is the sweep engine's (``sweep.engine.PointEngine``), shared with
+`airpuff sweep`.  One loop (period ``Settings.poll_interval``, woken early by the API on submit
+and cancel), one method per step:
 
 1. ``_drop_cancelled`` -- cancelled jobs (the API marks the job and its pending points
-   ``cancelled`` in one transaction): futures that no queued or running job needs are cancelled
-   on the cluster;
-2. ``_start_queued`` -- queued jobs (oldest first) become ``running``; each pending point is
-   either taken from the ``points`` table (same key, result file still on disk: *reused*),
-   attached to a future that is already computing that key for another job, or submitted as
-   ``sweep.worker.compute_point`` with ``pure=False``, ``retries`` and a priority that favours
-   older jobs;
-3. ``_collect`` -- finished futures: the point's netCDF file, which came back through Dask as
-   bytes, is written into the data directory by this thread (``sweep.storage.save_point``), then
-   the point's record goes to ``points`` and to every running job waiting for that key, in one
-   transaction;
-4. ``_finish_jobs`` -- running jobs with no pending point: the point files are combined into the
+   ``cancelled`` in one transaction): tasks that no queued or running job needs are cancelled;
+2. ``_start_queued`` -- queued jobs become ``running``; each pending point whose result is stored
+   (``sweep.engine.stored_record``) is taken from the ``points`` table, or read back from its
+   file if the record did not reach the database;
+3. ``_feed`` -- the engine takes the pending points of the running jobs, one job at a time in
+   turn, into its window of tasks on the cluster (a point already in flight for another job is
+   shared);
+4. ``_collect`` -- finished tasks, whose files the engine has stored: the point's record goes to
+   ``points`` and to every running job waiting for that key, in one transaction;
+5. ``_finish_jobs`` -- running jobs with no pending point: the point files are combined into the
    job's ``sweep.nc`` (only this thread touches netCDF in the server process) and the job becomes
    ``done`` (or ``failed`` if every point failed or combining failed).
 
@@ -32,12 +32,8 @@ The scheduler keeps no state across restarts; the database does.  On start-up, j
 recomputed (a point file written just before a crash, whose record did not reach the database,
 is read back too), and temporary files left by a write that was killed are removed.
 
-Stored results are trusted only as far as they can be read: a point file that cannot be read
-in full (or that another model version wrote) counts as missing -- ``sweep.storage.open_point``
-moves it aside to ``points/damaged/`` with a record -- and is computed again, whether the runner
-finds it when a job starts or when the job is combined.  A failure of the infrastructure is
-submitted again (``INFRASTRUCTURE_RETRIES``) and never reused by a later job; a failure of the
-model is reused unless the job asks for ``retry_failed``.  Messages that reach clients (a job's
+A point file found unusable when a job is combined (moved aside by ``sweep.storage.open_point``)
+makes its point pending again, to be computed anew.  Messages that reach clients (a job's
 ``error``, a point's ``message``, ``runner_error`` in /health) carry no path of this machine.
 """
 
@@ -52,7 +48,7 @@ import time
 import uuid
 from pathlib import Path
 
-from airpuff_core.provenance import model_version
+from sweep.engine import MAX_DAMAGED_RECOMPUTES, PointEngine, stored_record
 from sweep.storage import INFRASTRUCTURE_RETRIES, one_line_message
 
 from . import db
@@ -60,9 +56,7 @@ from .settings import Settings
 
 log = logging.getLogger("airpuff.runner")
 
-MAX_LOST_RESUBMITS = 3  # futures cancelled under us (scheduler restart) are resubmitted this often
-# A point whose stored file proves unusable when its job is combined is computed again this often.
-MAX_DAMAGED_RECOMPUTES = 2
+__all__ = ["Runner", "RunnerLocked", "acquire_runner_lock", "INFRASTRUCTURE_RETRIES"]
 
 
 class RunnerLocked(RuntimeError):
@@ -99,12 +93,8 @@ class Runner:
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self.client = None
-        self.futures: dict[str, object] = {}  # point key -> Future
-        self.trigger: dict[str, str] = {}  # point key -> id of the job that submitted it
-        self.params: dict[str, object] = {}  # point key -> RunParams (for resubmission)
-        self.lost: dict[str, int] = {}
-        self.infrastructure_retries: dict[str, int] = {}  # point key -> automatic re-runs
-        self.damaged: dict[str, int] = {}  # point key -> recomputes after an unusable file
+        self.engine: PointEngine | None = None
+        self.specs: dict[str, object] = {}  # id of a running job -> its SweepSpec
         self._warmed: set[tuple] = set()
         self._last_info = 0.0
         self._n_cancelled = -1
@@ -154,7 +144,7 @@ class Runner:
 
     def _close(self) -> None:
         client, self.client = self.client, None
-        self.futures.clear()
+        self.engine = None
         if client is not None:
             from sweep.cluster import close_client
 
@@ -175,6 +165,10 @@ class Runner:
                 self._warm(None)
                 self.state = "connecting" if s.scheduler else "starting"
                 self.client = make_client(workers=s.workers, scheduler=s.scheduler)
+                self.engine = PointEngine(
+                    self.client, s.points_dir, retries=s.retries,
+                    on_submit=lambda keys: db.upsert_pending_points(self.con, keys,
+                                                                    submitted=True))
                 self._update_info(force=True)
                 return True
             except Exception as err:  # noqa: BLE001
@@ -222,6 +216,7 @@ class Runner:
     def _tick(self) -> None:
         self._drop_cancelled()
         self._start_queued()
+        self._feed()
         self._collect()
         self._finish_jobs()
         self._update_info()
@@ -242,22 +237,16 @@ class Runner:
 
     def _drop_cancelled(self) -> None:
         """The API marks a cancelled job and its pending points in one transaction; here the
-        futures that no queued or running job needs any more are cancelled on the cluster."""
+        tasks that no queued or running job needs any more are cancelled on the cluster."""
         n = db.count_jobs(self.con, "cancelled")
         if n == self._n_cancelled:
             return
         self._n_cancelled = n
         db.cancel_points_of_cancelled_jobs(self.con)
         needed = db.needed_point_keys(self.con)
-        drop = [k for k in self.futures if k not in needed]
-        if drop and self.client is not None:
-            self.client.cancel([self.futures[k] for k in drop])
-        for k in drop:
-            self.futures.pop(k, None)
-            self.trigger.pop(k, None)
-            self.params.pop(k, None)
-        if drop:
-            log.info("cancelled %d point task(s) no job needs any more", len(drop))
+        dropped = self.engine.cancel([k for k in self.engine.tasks if k not in needed])
+        if dropped:
+            log.info("cancelled %d point task(s) no job needs any more", len(dropped))
 
     def _start_queued(self) -> None:
         """queued -> running (or failed, if this version cannot run the stored job)."""
@@ -269,73 +258,68 @@ class Runner:
                 continue
             try:
                 spec = SweepSpec.from_dict(json.loads(job["spec_json"]), validate=False)
-                points = spec.validated_points()  # this version can run every point
+                spec.validate()  # this version can run every point
                 self._warm(spec.options)
-                self._dispatch(job_id, job["seq"], points, bool(job["retry_failed"]))
+                self.specs[job_id] = spec
+                self._reuse_stored(job_id, spec, bool(job["retry_failed"]))
             except Exception as err:  # noqa: BLE001 - a stored spec this version cannot run
                 log.exception("starting job %s", job_id)
                 self._end_job(job_id, "failed", f"cannot start the job: {err}")
 
-    def _dispatch(self, job_id: str, seq: int, points: list, retry_failed: bool = False) -> None:
-        """Each pending point of a job just started is reused (its result is stored), shared (a
-        future computes its key already), read back (a file without a record) or submitted.
-        Stored failures are reused only if the model failed and the job does not ask for
-        ``retry_failed``; an unusable stored file is moved aside and its point submitted."""
-        from sweep.storage import point_key, read_point, reusable
+    def _reuse_stored(self, job_id: str, spec, retry_failed: bool = False) -> None:
+        """Each pending point of a job just started whose result is stored is reused: taken
+        from the ``points`` table, or read back from its file (written just before a crash,
+        its record never reached the database).  The others wait for ``_feed``."""
+        from sweep.storage import point_key
 
         pending = db.pending_job_points(self.con, job_id)
-        reused, submit, on_disk = [], {}, {}
+        reused, on_disk = [], {}
         for row in pending:
-            params = points[row["idx"]]
-            # The key was computed when the job was submitted; it is recomputed here only to
-            # follow a change of the key's definition between versions (a stored job of an
-            # older server).
-            key = point_key(params)
-            if key != row["key"]:
-                db.set_job_point_key(self.con, job_id, row["idx"], key)
-            if key in self.futures or key in submit or key in on_disk:
+            key = row["key"]
+            if key in self.engine.tasks or key in on_disk:
                 continue  # already computing for another job (or listed twice)
-            found = read_point(self.settings.points_dir, key)  # None if unusable (set aside)
-            if not reusable(found, retry_failed):
-                submit[key] = params
+            found = stored_record(self.settings.points_dir, key, retry_failed)
+            if found is None:
+                # The key was computed when the job was submitted; it is recomputed here only
+                # to follow a change of the key's definition between versions (a stored job of
+                # an older server), which the stored file would not match.
+                new_key = point_key(spec.point(row["idx"]))
+                if new_key != key:
+                    db.set_job_point_key(self.con, job_id, row["idx"], new_key)
                 continue
-            row = db.point_row(self.con, key)
-            if row is not None and row["status"] == found["status"]:  # its result is recorded
-                reused.append((row["status"], row["message"], job_id, key))
-            else:  # a file written just before a crash, whose record did not reach the database
-                on_disk[key] = {**found, "computed": False}
+            stored = db.point_row(self.con, key)
+            if stored is not None and stored["status"] == found.status:  # its result is recorded
+                reused.append((found.status, stored["message"], job_id, key))
+            else:
+                on_disk[key] = found
         if reused:
             db.mark_reused(self.con, reused)
         if on_disk:
             db.upsert_pending_points(self.con, on_disk, submitted=False)
             self._record([(k, job_id, rec) for k, rec in on_disk.items()])
-        self._submit(job_id, seq, submit)
-        n_reused = len(reused) + len(on_disk)
-        log.info("job %s: %d points, %d reused, %d submitted, %d shared with other jobs",
-                 job_id, len(points), n_reused, len(submit), len(pending) - n_reused - len(submit))
+        log.info("job %s: %d points, %d reused", job_id, spec.n_points,
+                 len(reused) + len(on_disk))
 
-    def _submit(self, job_id: str, seq: int, submit: dict) -> None:
-        """Submit ``{key: RunParams}`` to the cluster for ``job_id``."""
-        if not submit:
-            return
-        from sweep.worker import compute_point
+    def _feed(self) -> None:
+        """Hand the engine the pending points of the running jobs (it takes them in turn)."""
+        jobs = db.running_jobs(self.con)
+        for job_id in list(self.specs):
+            if job_id not in {job["id"] for job in jobs}:
+                del self.specs[job_id]
+        sources = {job["id"]: self._source(job["id"]) for job in jobs if job["id"] in self.specs}
+        self.engine.feed(sources)
 
-        db.upsert_pending_points(self.con, submit, submitted=True)
-        for key, params in submit.items():
-            self.futures[key] = self.client.submit(
-                compute_point, params, key, pure=False, retries=self.settings.retries,
-                priority=-int(seq), key=f"airpuff-point-{key}-{uuid.uuid4().hex[:8]}")
-            self.trigger[key] = job_id
-            self.params[key] = params
+    def _source(self, job_id: str):
+        spec = self.specs[job_id]
+
+        def next_points(n: int) -> list[tuple[str, object]]:
+            rows = db.pending_job_points(self.con, job_id, n)
+            return [(row["key"], spec.point(row["idx"])) for row in rows
+                    if row["key"] not in self.engine.tasks]
+        return next_points
 
     def _collect(self) -> None:
-        """Finished futures: store each point's file and record its result."""
-        from sweep.storage import failure_kind, save_point
-        from sweep.worker import failure_from_exception
-
-        done = [(k, f) for k, f in self.futures.items() if f.done()]
-        if not done:
-            return
+        """Finished tasks (their results stored by the engine): record them."""
         needed: set[str] | None = None  # keys a job still waits for: read once, when first asked
 
         def still_needed(key: str) -> bool:
@@ -344,58 +328,9 @@ class Runner:
                 needed = db.needed_point_keys(self.con)
             return key in needed
 
-        records = []
-        for key, fut in done:
-            self.futures.pop(key)
-            job_id = self.trigger.pop(key, None)
-            params = self.params.pop(key, None)
-            if fut.status == "finished":
-                rec = self._save(save_point, key, fut)
-            elif fut.status == "cancelled":  # lost with the scheduler, or cancelled by us
-                if (still_needed(key)
-                        and self.lost.get(key, 0) < MAX_LOST_RESUBMITS):
-                    self.lost[key] = self.lost.get(key, 0) + 1
-                    self._submit(job_id, db.job_seq(self.con, job_id), {key: params})
-                    continue
-                rec = failure_from_exception(self.settings.points_dir, params,
-                                             RuntimeError("the task was lost repeatedly"), key)
-            else:  # the task itself raised (e.g. KilledWorker: it crashed workers repeatedly)
-                rec = failure_from_exception(self.settings.points_dir, params, fut.exception(),
-                                             key)
-            fut.release()
-            if (rec["status"] == "failed" and failure_kind(rec) == "infrastructure"
-                    and params is not None and still_needed(key)
-                    and self.infrastructure_retries.get(key, 0) < INFRASTRUCTURE_RETRIES):
-                self.infrastructure_retries[key] = self.infrastructure_retries.get(key, 0) + 1
-                log.warning("point %s: %s; submitting it again (%d of %d)", key, rec["message"],
-                            self.infrastructure_retries[key], INFRASTRUCTURE_RETRIES)
-                self._submit(job_id, db.job_seq(self.con, job_id), {key: params})
-                continue
-            self.infrastructure_retries.pop(key, None)
-            records.append((key, job_id, rec))
+        records = self.engine.collect(wanted=still_needed)
         if records:
             self._record(records)
-
-    def _save(self, save_point, key: str, fut) -> dict:
-        """Write the point file that came back through Dask into the data directory."""
-        try:
-            rec, data = fut.result()
-            if rec.get("key") != key:  # the workers run another version of airpuff
-                log.warning("point %s came back under key %s: do the workers run the same "
-                            "airpuff version as this server?", key, rec.get("key"))
-            if rec.get("status") == "ok" and rec.get("model_version") != model_version():
-                raise RuntimeError(f"the worker runs model version {rec.get('model_version')}, "
-                                   f"this server {model_version()}: install the same airpuff "
-                                   "on the workers")
-            return save_point(self.settings.points_dir, key, rec, data)
-        except Exception as err:  # noqa: BLE001 - e.g. a full disk; a later job recomputes it
-            from airpuff_core.result import METRICS
-
-            log.exception("storing point %s", key)
-            message = one_line_message(f"could not store the result: {type(err).__name__}: {err}")
-            return {"status": "failed", "message": message, "kind": "infrastructure",
-                    "metrics": {name: None for name in METRICS}, "wall_s": None,
-                    "computed": True}
 
     def _record(self, records) -> None:
         db.record_point_results(self.con, records)
@@ -433,21 +368,16 @@ class Runner:
 
     def _recompute_damaged(self, job_id: str, spec, keys: list[str], damaged: list[str]) -> None:
         """Point files of a job found unusable when combining (moved aside): their points are
-        pending again and submitted, at most ``MAX_DAMAGED_RECOMPUTES`` times each."""
-        over = [k for k in damaged if self.damaged.get(k, 0) >= MAX_DAMAGED_RECOMPUTES]
+        pending again, at most ``MAX_DAMAGED_RECOMPUTES`` times each (``_feed`` submits them)."""
+        over = self.engine.allow_recompute(damaged)
         if over:
             self._end_job(job_id, "failed", f"the file of point {over[0]} was unusable after "
                                             f"{MAX_DAMAGED_RECOMPUTES} recomputations (see "
                                             "points/damaged/)")
             return
-        for k in damaged:
-            self.damaged[k] = self.damaged.get(k, 0) + 1
-        params_by_key = dict(zip(keys, spec.points()))
         log.warning("job %s: %d point file(s) unusable, computing them again", job_id,
                     len(damaged))
         db.reopen_job_points(self.con, job_id, damaged)
-        self._submit(job_id, db.job_seq(self.con, job_id),
-                     {k: params_by_key[k] for k in damaged if k not in self.futures})
 
     def _end_job(self, job_id: str, status: str, error: str | None) -> None:
         error = None if error is None else one_line_message(error)

@@ -71,17 +71,17 @@ def measure(workers: int, spec: SweepSpec) -> dict:
     steady = marks["done"][-1] - marks["ready"]
     per_worker: dict = {}
     for rec in outcome.records:
-        w = per_worker.setdefault(rec["pid"], {"points": 0, "busy": 0.0})
+        w = per_worker.setdefault(rec.pid, {"points": 0, "busy": 0.0})
         w["points"] += 1
-        w["busy"] += rec["wall_s"] or 0.0
+        w["busy"] += rec.wall_s or 0.0
     return {"workers": workers, "points": outcome.computed, "failed": outcome.failed,
             "startup": marks["ready"] - t0, "client_warmup": outcome.warmup_s,
             "worker_warmup": marks["warm"], "steady": steady,
             "finish": t_end - marks["done"][-1], "wall": t_end - t0,
             "rate": outcome.computed / steady * 60.0, "per_worker": per_worker,
             "mean_point": sum(w["busy"] for w in per_worker.values()) / max(1, outcome.computed),
-            "point_range": (min(r["wall_s"] or 0.0 for r in outcome.records),
-                            max(r["wall_s"] or 0.0 for r in outcome.records)),
+            "point_range": (min(r.wall_s or 0.0 for r in outcome.records),
+                            max(r.wall_s or 0.0 for r in outcome.records)),
             "warnings": outcome.warnings}
 
 

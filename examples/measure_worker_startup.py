@@ -3,7 +3,7 @@
     python examples/measure_worker_startup.py [--points 4] [--t-end 3]
 
 Each mode runs in a fresh process with a NUMBA_CACHE_DIR in a temporary folder, starts a LocalCluster of 2 worker processes (one thread each) and runs the same short
-coarse points through ``sweep.worker.run_point``:
+coarse points through ``sweep.worker.compute_point``:
 
 * cold: no warm-up -- every worker compiles the solver's kernels itself, both at once into the
   same empty cache (the situation the runner avoids);
@@ -35,7 +35,7 @@ def measure(mode: str, n_points: int, t_end: float) -> dict:
     from sweep.cluster import close_client, make_client
     from sweep.numba_cache import warm_numba_cache
     from sweep.grid import SweepSpec
-    from sweep.worker import run_point
+    from sweep.worker import compute_point
 
     spec = SweepSpec(E0=[0.4 + 0.05 * i for i in range(n_points)],
                      options={"resolution": "coarse", "t_end": t_end}).validate()
@@ -45,16 +45,14 @@ def measure(mode: str, n_points: int, t_end: float) -> dict:
     try:
         client.wait_for_workers(2)
         t_cluster = time.perf_counter() - t0
-        with tempfile.TemporaryDirectory(prefix="airpuff-startup-points-") as points_dir:
-            t1 = time.perf_counter()
-            futures = [client.submit(run_point, p, points_dir, pure=False)
-                       for p in spec.points()]
-            records = [f.result() for f in as_completed(futures)]
-            t_points = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        futures = [client.submit(compute_point, p, pure=False) for p in spec.points()]
+        records = [f.result()[0] for f in as_completed(futures)]
+        t_points = time.perf_counter() - t1
     finally:
         close_client(client)
     return {"mode": mode, "warmup_s": warmup, "cluster_start_s": t_cluster, "points_s": t_points,
-            "records": [{k: r[k] for k in ("pid", "first_in_process", "wall_s", "jit_compiled",
+            "records": [{k: getattr(r, k) for k in ("pid", "first_in_process", "wall_s", "jit_compiled",
                                            "jit_loaded", "status")} for r in records]}
 
 

@@ -205,8 +205,8 @@ def _warm_this_worker(params) -> dict:
     from .worker import compute_point  # on the worker: the solver is imported here, not above
 
     record, _ = compute_point(params)
-    return {"pid": os.getpid(), "seconds": time.perf_counter() - t0, "status": record["status"],
-            "message": record["message"], "jit_compiled": record["jit_compiled"],
-            "jit_loaded": record["jit_loaded"]}
+    return {"pid": os.getpid(), "seconds": time.perf_counter() - t0, "status": record.status,
+            "message": record.message, "jit_compiled": record.jit_compiled,
+            "jit_loaded": record.jit_loaded}
 
 

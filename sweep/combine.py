@@ -123,10 +123,9 @@ def _read(spec, points_dir: Path, keys: list[str] | None) -> _Grid:
             continue
         record = read_point(points_dir, key)
         if record is not None:  # a failure record
-            grid.status[idx] = record["status"]
-            grid.message[idx] = record.get("message", "")
-            wall = record.get("wall_s")
-            grid.wall[idx] = np.nan if wall is None else float(wall)
+            grid.status[idx] = record.status
+            grid.message[idx] = record.message
+            grid.wall[idx] = np.nan if record.wall_s is None else float(record.wall_s)
     return grid
 
 

@@ -219,6 +219,12 @@ class SweepSpec:
         return [RunParams.from_dict({**base, "E0": e, "IOP": i, "thickness": h, "pmax": p})
                 for e in self.E0 for i in self.IOP for h in self.thickness for p in self.pmax]
 
+    def point(self, index: int) -> RunParams:
+        """The point at ``index`` of :meth:`points` (C order), built alone."""
+        e, i, h, p = np.unravel_index(int(index), self.shape)
+        return RunParams.from_dict({**self.options, "E0": self.E0[e], "IOP": self.IOP[i],
+                                    "thickness": self.thickness[h], "pmax": self.pmax[p]})
+
     def index_of(self, params: RunParams) -> tuple[int, int, int, int]:
         """Grid index (iE0, iIOP, ithickness, ipmax) of a point of this sweep."""
         return tuple(list(getattr(self, n)).index(getattr(params, n)) for n in SWEPT)

@@ -124,7 +124,7 @@ def jit_counts() -> dict[str, tuple[int, int]]:
     """Numba compile statistics of this process: qualified kernel name -> (cache loads, compiles).
 
     Counts every Numba dispatcher defined in an ``airpuff_core`` module.  A compile is a cache
-    miss (Numba compiled the function in this process); a load is a cache hit.  ``run_point``
+    miss (Numba compiled the function in this process); a load is a cache hit.  ``compute_point``
     records the difference before/after each point, which is how the tests check that a warmed
     worker never compiles.
     """

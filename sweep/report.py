@@ -39,13 +39,13 @@ class SweepProgress:
         self.started = False
         self.walls: list[float] = []  # run time [s] of each point computed so far
 
-    def __call__(self, record: dict | None, counts: dict) -> None:
+    def __call__(self, record, counts: dict) -> None:
         total, done, failed = counts["total"], counts["done"], counts["failed"]
         computed, reused = counts["computed"], counts["reused"]
         elapsed = time.monotonic() - self.t0
         remaining = total - done
-        if record is not None and record.get("computed") and record.get("wall_s") is not None:
-            self.walls.append(float(record["wall_s"]))
+        if record is not None and record.computed and record.wall_s is not None:
+            self.walls.append(float(record.wall_s))
         eta = self._eta(elapsed, computed, remaining, counts.get("workers"))
         frac = done / total if total else 1.0
         fill = int(round(self.WIDTH * frac))
@@ -56,8 +56,8 @@ class SweepProgress:
         if self.tty:
             self.stream.write("\r" + line + "\x1b[K")
         else:
-            if record is not None and record.get("status") == "failed":
-                line += f"  [failed: {_point_label(record)}: {record.get('message', '')}]"
+            if record is not None and record.failed:
+                line += f"  [failed: {_point_label(record)}: {record.message}]"
             self.stream.write(line + "\n")
         self.stream.flush()
 
@@ -78,8 +78,8 @@ class SweepProgress:
             self.stream.flush()
 
 
-def _point_label(record: dict) -> str:
-    p = record.get("params") or {}
+def _point_label(record) -> str:
+    p = record.params or {}
     return " ".join(f"{n}={p.get(n, float('nan')):g}" for n in SWEPT)
 
 
@@ -99,17 +99,16 @@ def summary_table(outcome, max_rows: int = 40) -> str:
     head += f"{'wall [s]':>10s}  note"
     lines = [head, "-" * len(head)]
     records = [r for r in outcome.records if r is not None]
-    ordered = ([r for r in records if r["status"] == "failed"]
-               + [r for r in records if r["status"] != "failed"])
+    ordered = [r for r in records if r.failed] + [r for r in records if not r.failed]
     for rec in ordered[:max_rows]:
-        p = rec.get("params") or {}
+        p = rec.params or {}
         row = "  ".join(f"{p.get(n, float('nan')):14.4g}" for n in SWEPT)
-        row += f"  {rec['status']:6s} "
-        metrics = rec.get("metrics") or {}
+        row += f"  {rec.status:6s} "
+        metrics = rec.metrics or {}
         row += "".join(f"{_fmt(metrics.get(m), 13)}" for m, _ in TABLE_METRICS)
-        row += f"{_fmt(rec.get('wall_s'), 10, 1)}"
-        note = "" if rec.get("computed", True) else "(stored) "
-        note += rec.get("message") or ""
+        row += f"{_fmt(rec.wall_s, 10, 1)}"
+        note = "" if rec.computed else "(stored) "
+        note += rec.message or ""
         if len(note) > 90:
             note = note[:87] + "..."
         lines.append(row + "  " + note)

@@ -24,10 +24,8 @@ the solver is the same; a changed solver computes its points anew.  The key is c
 per point, where the point enters the system (``sweep.runner`` or the API's ``POST /sweeps``),
 and passed along with the point from there on.
 
-A failure record says which kind of failure it was (:func:`failure_kind`): ``model`` (the
-solver's own verdict: ``SimulationError``, ``ParameterError``; computing it again gives the same
-failure, so it is kept unless a retry is asked for) or ``infrastructure`` (anything else: a lost
-worker, a write error; computed again automatically, see :func:`reusable`).
+A point's record is a ``sweep.record.PointRecord``; a failure record says which kind of failure it
+was (``model`` or ``infrastructure``), which decides whether it is reused (:func:`reusable`).
 """
 
 from __future__ import annotations
@@ -49,19 +47,15 @@ from airpuff_core.dataset import open_dataset
 from airpuff_core.provenance import model_version
 from airpuff_core.result import METRICS
 
+from .record import PointRecord
+
 POINTS_SUBDIR = "points"
 DAMAGED_SUBDIR = "damaged"
 SWEEP_FILE = "sweep.nc"
 SPEC_FILE = "sweep.json"
 
-# Fields of a record that describe one call (which process, Numba activity), not the point.
-PER_CALL_FIELDS = ("computed", "pid", "first_in_process", "jit_compiled", "jit_loaded")
-
-# Failures that are the solver's verdict on the parameters (the exception's class name): computing
-# the point again gives the same failure.  Any other failure is the infrastructure's.
-MODEL_FAILURES = ("SimulationError", "ParameterError")
 # Automatic re-runs of a point whose failure is the infrastructure's (a lost worker, a write
-# error), after the first attempt; used by both runners (sweep.runner and api.runner).
+# error), after the first attempt (``sweep.engine``).
 INFRASTRUCTURE_RETRIES = 2
 
 # The first bytes of a netCDF file: HDF5 (netCDF-4) or classic netCDF (CDF1 / CDF2).
@@ -149,19 +143,18 @@ def notes_message(notes: dict[str, str]) -> str:
     return "; ".join(f"{', '.join(names)}: {reason}" for reason, names in by_reason.items())
 
 
-def write_failure(points_dir: str | os.PathLike, key: str, record: dict) -> Path:
-    """Store the failure record of a point (without the per-call fields)."""
-    stored = {k: v for k, v in record.items() if k not in PER_CALL_FIELDS}
-    return write_json(failed_path(points_dir, key), stored)
+def write_failure(points_dir: str | os.PathLike, key: str, record: PointRecord) -> Path:
+    """Store the failure record of a point (its stored form: without the per-call fields)."""
+    return write_json(failed_path(points_dir, key), record.stored())
 
 
-def save_point(points_dir: str | os.PathLike, key: str, record: dict,
-               data: bytes | None = None) -> dict:
+def save_point(points_dir: str | os.PathLike, key: str, record: PointRecord,
+               data: bytes | None = None) -> PointRecord:
     """Store a point's outcome under ``key`` in ``points_dir``: the netCDF bytes ``data``
     atomically at ``point_path`` if the point is ok (any older failure record is removed), else
     the failure record at ``failed_path``.  Returns the record.  ``key`` is the caller's, so the
     file lands where the caller will look for it."""
-    if record.get("status") == "ok":
+    if record.ok:
         if not isinstance(data, (bytes, bytearray, memoryview)) or bytes(data[:4]) not in NETCDF_MAGIC:
             raise ValueError(f"point {key}: the result carries no netCDF file")
         atomic_write(point_path(points_dir, key), lambda tmp: tmp.write_bytes(bytes(data)))
@@ -171,23 +164,14 @@ def save_point(points_dir: str | os.PathLike, key: str, record: dict,
     return record
 
 
-def failure_kind(record: dict) -> str:
-    """``"model"`` or ``"infrastructure"``: the kind of a failure record (records of older
-    versions have no ``kind``; their error type tells)."""
-    kind = record.get("kind")
-    if kind in ("model", "infrastructure"):
-        return kind
-    return "model" if record.get("error_type") in MODEL_FAILURES else "infrastructure"
-
-
-def reusable(record: dict | None, retry_failed: bool = False) -> bool:
+def reusable(record: PointRecord | None, retry_failed: bool = False) -> bool:
     """Whether a stored record stands instead of computing the point: a finished point always; a
     failure of the model unless ``retry_failed``; a failure of the infrastructure never."""
     if record is None:
         return False
-    if record["status"] == "ok":
+    if record.ok:
         return True
-    return failure_kind(record) == "model" and not retry_failed
+    return record.failure_kind() == "model" and not retry_failed
 
 
 def set_aside(points_dir: str | os.PathLike, key: str, path: Path, reason: str) -> Path | None:
@@ -241,30 +225,29 @@ def open_point(points_dir: str | os.PathLike, key: str, full: bool = True) -> xr
     return ds
 
 
-def read_point(points_dir: str | os.PathLike, key: str) -> dict | None:
-    """The stored record of a point (same fields as ``sweep.worker.run_point`` returns, minus the
-    per-call ones), or None if the point has not been run or its file is unusable (moved aside by
-    :func:`open_point`).  A finished point wins over a failure record."""
+def read_point(points_dir: str | os.PathLike, key: str) -> PointRecord | None:
+    """The stored record of a point (``computed`` False), or None if the point has not been run
+    or its file is unusable (moved aside by :func:`open_point`).  A finished point wins over a
+    failure record."""
     ds = open_point(points_dir, key, full=False)
     if ds is not None:
         metrics = {name: float(ds[name].values) for name in METRICS}
         notes = {name: ds[name].attrs.get("comment", "") for name in METRICS}
-        return {"key": key, "status": "ok", "message": notes_message(notes),
-                "metrics": json_safe_metrics(metrics),
-                "wall_s": float(ds.attrs.get("wall_time_s", float("nan"))),
-                "params": json.loads(ds.attrs["parameters_json"]),
-                "model_version": ds.attrs.get("model_version")}
+        return PointRecord(key=key, status="ok", message=notes_message(notes),
+                           metrics=json_safe_metrics(metrics),
+                           wall_s=float(ds.attrs.get("wall_time_s", float("nan"))),
+                           params=json.loads(ds.attrs["parameters_json"]),
+                           model_version=ds.attrs.get("model_version"), computed=False)
     fpath = failed_path(points_dir, key)
     if fpath.is_file():
         try:
-            record = json.loads(fpath.read_text())
-            if not isinstance(record, dict) or record.get("status") != "failed":
+            stored = json.loads(fpath.read_text())
+            if not isinstance(stored, dict) or stored.get("status") != "failed":
                 raise ValueError("not a failure record")
-        except (ValueError, UnicodeDecodeError) as err:
+            return PointRecord.from_dict({"key": key, **stored}, computed=False)
+        except (ValueError, TypeError, UnicodeDecodeError) as err:
             set_aside(points_dir, key, fpath, f"unreadable: {type(err).__name__}: {err}")
             return None
-        record["kind"] = failure_kind(record)
-        return record
     return None
 
 

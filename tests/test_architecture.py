@@ -5,7 +5,11 @@ Rules:
 * no import loop between the project's modules (every import counts, also one inside a function:
   a lazy import hides a loop, it does not remove it);
 * layers airpuff_core < sweep < api: a module imports nothing from a layer above its own;
-* the Numba kernels (``airpuff_core.kernels``) import nothing of the project outside ``kernels``.
+* the Numba kernels (``airpuff_core.kernels``) import nothing of the project outside ``kernels``;
+* the browser pages (``api.pages``) reach jobs through the jobs layer (``api.jobs``), never through
+  the JSON routes (``api.routes``);
+* only the sweep engine (``sweep.engine``) submits point tasks: no other module imports
+  ``sweep.worker`` (``sweep.cluster`` excepted: it warms the workers with the task itself).
 
 A module's own ancestor packages are not counted as its imports: Python runs a package's
 ``__init__`` before any of its modules anyway, so ``from . import __version__`` adds no order.
@@ -120,11 +124,31 @@ def layer_violations(graph: dict[str, set[str]]) -> list[str]:
     return problems
 
 
+# (module, a module it must not import, why)
+FORBIDDEN = (
+    ("api.pages", "api.routes", "the pages use the jobs layer, api.jobs"),
+)
+# Modules that may import the task of a point; the runners go through sweep.engine.
+WORKER_TASK = "sweep.worker"
+WORKER_TASK_USERS = ("sweep.engine", "sweep.cluster")
+
+
+def rule_violations(graph: dict[str, set[str]]) -> list[str]:
+    """Imports that the rules above forbid (pages -> routes, submitting points besides the
+    engine)."""
+    problems = [f"{module} imports {name}: {why}" for module, name, why in FORBIDDEN
+                if name in graph.get(module, set())]
+    problems += [f"{module} imports {WORKER_TASK}: only the sweep engine submits points"
+                 for module, imported in sorted(graph.items())
+                 if WORKER_TASK in imported and module not in WORKER_TASK_USERS]
+    return problems
+
+
 def check(root: Path) -> list[str]:
     """Every problem of the import structure of the project under ``root``."""
     graph = import_graph(root)
     return ([f"import loop: {' <-> '.join(c)}" for c in import_cycles(graph)]
-            + layer_violations(graph))
+            + layer_violations(graph) + rule_violations(graph))
 
 
 # -- the project ---------------------------------------------------------------------------------
@@ -144,7 +168,13 @@ def test_a_planted_upward_import_and_loop_in_a_copy_of_the_project_are_found(tmp
         fh.write("\n\ndef _planted():\n    from api.cli import main\n    return main\n")
     with open(tmp_path / "sweep" / "storage.py", "a") as fh:  # storage <-> worker: a loop
         fh.write("\nfrom . import worker\n")
+    with open(tmp_path / "api" / "pages.py", "a") as fh:  # pages -> routes
+        fh.write("\n\ndef _planted():\n    from . import routes\n    return routes\n")
+    with open(tmp_path / "api" / "runner.py", "a") as fh:  # a second submitter of points
+        fh.write("\n\ndef _planted():\n    from sweep.worker import compute_point\n")
     problems = check(tmp_path)
+    assert "api.pages imports api.routes: the pages use the jobs layer, api.jobs" in problems
+    assert "api.runner imports sweep.worker: only the sweep engine submits points" in problems
     assert "sweep.grid imports api.cli, a higher layer" in problems, problems
     assert any(p.startswith("import loop: ") and "sweep.storage" in p and "sweep.worker" in p
                for p in problems), problems

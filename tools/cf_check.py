@@ -20,8 +20,8 @@ from airpuff_core import RunParams, simulate
 from airpuff_core.dataset import write_netcdf
 from sweep.combine import write_sweep
 from sweep.grid import SweepSpec
-from sweep.storage import point_key, point_path
-from sweep.worker import run_point
+from sweep.storage import point_key, point_path, save_point
+from sweep.worker import compute_point
 
 SHORT = {"resolution": "coarse", "t_end": 0.5}  # a short run: the file's structure is all that counts
 
@@ -34,7 +34,7 @@ def write_files(out_dir: Path) -> dict[str, Path]:
     spec = SweepSpec(E0=[0.5], IOP=[16.0], options=dict(SHORT)).validate()
     points = out_dir / "points"
     for p in spec.points():
-        run_point(p, str(points))
+        save_point(points, point_key(p), *compute_point(p))
     point = point_path(points, point_key(next(iter(spec.points()))))
     sweep = write_sweep(spec, points, out_dir / "sweep.nc")
     return {"run": run, "point": point, "sweep": sweep}

@@ -341,16 +341,17 @@ def test_compose_and_dockerfile_wiring():
 
 def test_save_point_refuses_a_result_without_a_netcdf_file(tmp_path):
     """The API stores what came back through Dask only if it is a netCDF file."""
+    from sweep.record import PointRecord
     from sweep.storage import failed_path, point_path, save_point
 
     with pytest.raises(ValueError, match="carries no netCDF file"):
-        save_point(tmp_path, "k1", {"key": "k1", "status": "ok"}, b"<html>")
+        save_point(tmp_path, "k1", PointRecord(key="k1", status="ok"), b"<html>")
     with pytest.raises(ValueError, match="carries no netCDF file"):
-        save_point(tmp_path, "k1", {"key": "k1", "status": "ok"})
+        save_point(tmp_path, "k1", PointRecord(key="k1", status="ok"))
     assert not point_path(tmp_path, "k1").exists()
-    rec = save_point(tmp_path, "k2", {"key": "k2", "status": "failed", "message": "blew up",
-                                      "pid": 1, "computed": True})
-    assert rec["status"] == "failed" and failed_path(tmp_path, "k2").exists()
+    rec = save_point(tmp_path, "k2", PointRecord(key="k2", status="failed", message="blew up",
+                                                 pid=1, computed=True))
+    assert rec.status == "failed" and failed_path(tmp_path, "k2").exists()
     assert "pid" not in failed_path(tmp_path, "k2").read_text()
 
 
@@ -382,7 +383,7 @@ def test_a_point_file_whose_record_was_lost_is_read_back_not_recomputed(tmp_path
         params = RunParams.from_dict({**options, "E0": 0.5, "IOP": 12.0, "thickness": 0.5,
                                       "pmax": 10.0})
         rec, netcdf = compute_point(params)
-        assert rec["status"] == "ok" and netcdf[:4] == b"\x89HDF", rec["message"]
+        assert rec.status == "ok" and netcdf[:4] == b"\x89HDF", rec.message
         key = point_key(params)
         save_point(data / "points", key, rec, netcdf)
         before = point_path(data / "points", key).stat()
@@ -394,7 +395,7 @@ def test_a_point_file_whose_record_was_lost_is_read_back_not_recomputed(tmp_path
             points = {p["IOP"]: p for p in c.get(f"/sweeps/{job_id}/metrics").json()["points"]}
         assert points[12.0]["key"] == key and points[12.0]["reused"] is True
         assert points[18.0]["reused"] is False and points[18.0]["status"] == "ok"
-        for name, value in rec["metrics"].items():
+        for name, value in rec.metrics.items():
             assert points[12.0][name] == value, name
         after = point_path(data / "points", key).stat()
         assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)

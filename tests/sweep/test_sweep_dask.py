@@ -57,7 +57,7 @@ def test_sweep_on_two_worker_processes_matches_direct_runs(main_sweep):
     spec, outcome, out = main_sweep
     assert (outcome.n_points, outcome.computed, outcome.reused, outcome.failed) == (4, 4, 0, 0)
     # the points really ran in two other processes
-    pids = {r["pid"] for r in outcome.records}
+    pids = {r.pid for r in outcome.records}
     assert len(pids) == 2 and os.getpid() not in pids
 
     with open_dataset(out / "sweep.nc") as ds:
@@ -105,16 +105,16 @@ def test_combined_file_is_self_describing(main_sweep):
 def test_numba_compiles_nothing_in_warmed_workers(main_sweep, dask_client):
     """The runner warmed the cache in this process before the fan-out: workers only load."""
     _, outcome, _ = main_sweep
-    assert all(r["jit_compiled"] == 0 for r in outcome.records), \
-        [(r["pid"], r["jit_compiled"]) for r in outcome.records]
-    by_pid: dict[int, list[dict]] = {}
+    assert all(r.jit_compiled == 0 for r in outcome.records), \
+        [(r.pid, r.jit_compiled) for r in outcome.records]
+    by_pid: dict[int, list] = {}
     for r in outcome.records:
-        by_pid.setdefault(r["pid"], []).append(r)
+        by_pid.setdefault(r.pid, []).append(r)
     for pid, recs in by_pid.items():
-        first = [r for r in recs if r["first_in_process"]]
-        later = [r for r in recs if not r["first_in_process"]]
-        assert len(first) == 1 and first[0]["jit_loaded"] > 0  # loaded once, from the cache
-        assert all(r["jit_loaded"] == 0 for r in later)  # and never again in that process
+        first = [r for r in recs if r.first_in_process]
+        later = [r for r in recs if not r.first_in_process]
+        assert len(first) == 1 and first[0].jit_loaded > 0  # loaded once, from the cache
+        assert all(r.jit_loaded == 0 for r in later)  # and never again in that process
     # and from the workers' own Numba statistics: no cache miss anywhere
     stats = dask_client.run(jit_counts)
     for addr, counts in stats.items():
@@ -143,7 +143,7 @@ def test_resume_computes_only_missing_points(main_sweep, dask_client):
                       options=dict(spec.options)).validate()
     resumed = run_sweep(grown, out, client=dask_client)
     assert resumed.computed == 3 and resumed.reused == 3 and resumed.failed == 0
-    computed_keys = {r["key"] for r in resumed.records if r["computed"]}
+    computed_keys = {r.key for r in resumed.records if r.computed}
     expected = {point_key(lost)} | {point_key(p) for p in grown.points() if p.IOP == 16.0}
     assert computed_keys == expected
     # the other finished points were not rewritten
@@ -153,7 +153,7 @@ def test_resume_computes_only_missing_points(main_sweep, dask_client):
     with xr.open_dataset(out / "sweep.nc") as ds:
         assert ds.sizes["IOP"] == 3 and (ds["status"].values == "ok").all()
         # the recomputed point is identical to its first computation
-        a = first.records[1]["metrics"]
+        a = first.records[1].metrics
         at = ds.sel(E0=lost.E0, IOP=lost.IOP, thickness=lost.thickness, pmax=lost.pmax)
         for name in METRICS:
             assert _same(float(at[name]), float("nan") if a[name] is None else a[name])
@@ -196,7 +196,7 @@ def test_existing_scheduler_by_address(dask_client, tmp_path):
     assert (outcome.computed, outcome.failed) == (2, 0)
     assert outcome.warnings == []  # its workers have one thread, NUMBA_NUM_THREADS=1, our cache
     worker_pids = set(dask_client.run(os.getpid).values())
-    assert {r["pid"] for r in outcome.records} <= worker_pids
+    assert {r.pid for r in outcome.records} <= worker_pids
     assert len(worker_pids) == 2  # the cluster is still there
 
 

@@ -5,14 +5,15 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
+from sweep.record import PointRecord
 from sweep.report import SweepProgress, summary_table
 from sweep.runner import SweepOutcome
 
 
 def _record(e0, status, wall, da=None, message=""):
-    return {"key": f"k{e0}", "status": status, "message": message, "wall_s": wall, "computed": True,
-            "params": {"E0": e0, "IOP": 16.0, "thickness": 0.5, "pmax": 10.0},
-            "metrics": {"IOPg": None, "CH": None, "DA": da}}
+    return PointRecord(key=f"k{e0}", status=status, message=message, wall_s=wall, computed=True,
+                       params={"E0": e0, "IOP": 16.0, "thickness": 0.5, "pmax": 10.0},
+                       metrics={"IOPg": None, "CH": None, "DA": da})
 
 
 def test_progress_counts_failures_and_estimates_the_rest():
