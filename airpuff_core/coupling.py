@@ -33,12 +33,12 @@ from .energy import EnergyBudget
 from .errors import SimulationError
 from .fluid import KAPPA, NeighbourTable, Operators
 from .geometry import build_chamber, chamber_volume
-from .globe import CompliantWall, enclosed_volume_rate
+from .globe import CompliantWall, enclosed_volume_rate, wall_weights
 from .kernels.energy import jet_pressures
 from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_divergence, drift,
                             impose_cornea, interface_pressure_change, max_density_deviation,
                             max_speed, tait_pressure, tait_pressure_at)
-from .kernels.membrane import cornea_polygon_volume
+from .kernels.membrane import add_pressure_loads, cornea_polygon_volume
 from .kernels.hyperviscosity import (hyperviscous_flow_increments, increments_work,
                                      legendre_plan)
 from .kernels.nodes import AXIS, CORNEA, WALL
@@ -203,6 +203,7 @@ class CoupledModel:
         self.y[ch.cornea_nodes] = Y
         self.apex_y0 = Y[0]
         self.n_apex_fit = apex_fit_nodes(X)
+        self.apex_acceleration = np.zeros(self.n_apex_fit)  # m/s^2, of the last step
 
     def _build_globe(self):
         """The compliant walls (``globe = compliant``, globe.py), or None for rigid ones."""
@@ -212,15 +213,18 @@ class CoupledModel:
         self.cornea_volume0 = cornea_polygon_volume(self.X, self.Y, self.volume_axis_y)
         self.wall = None
         self._wall_trial = None
-        if self.params.globe != "compliant":
-            return
         x_l = si.R_m * math.sin(si.alpha0_rad)
         x_c = si.r_post_m * math.sin(si.alpha0_rad) if self.params.geometry == "sector" else 0.0
-        self.wall = CompliantWall(ch.x, ch.y, np.flatnonzero(ch.kind == WALL), x_c, x_l,
+        # the walls behind the fluid and the weights of their mean pressure (rigid or compliant)
+        self._wall_nodes = np.flatnonzero(ch.kind == WALL)
+        self._wall_pressure_weight = wall_weights(ch.x[self._wall_nodes], x_c, x_l)[1]
+        self._wall_pressure = np.empty(self._wall_nodes.shape[0])  # work array [Pa]
+        if self.params.globe != "compliant":
+            return
+        self.wall = CompliantWall(ch.x, ch.y, self._wall_nodes, x_c, x_l,
                                   si.ocular_rigidity_per_m3, si.p0_Pa, si.rho_fluid, self.mass,
                                   si.tait_gamma)
         self.wall.volume_offset = self.density_volume() - self.chamber_volume()
-        self._wall_pressure = np.empty(self.wall.nodes.shape[0])  # work array [Pa]
 
     # -- time step --------------------------------------------------------------------------
     def time_step(self):
@@ -426,6 +430,8 @@ class CoupledModel:
         if self.viscoelastic is not None:
             self.viscoelastic.commit()
         self.cornea_model.commit()
+        self.apex_acceleration = (self._cornea_trial[3][:self.n_apex_fit]
+                                  - self.VY[:self.n_apex_fit]) / dt
         cornea_n = (self.X, self.Y, self.VX, self.VY)
         self.X, self.Y, self.VX, self.VY = self._cornea_trial
         self._cornea_trial = cornea_n
@@ -441,7 +447,7 @@ class CoupledModel:
         if self.wall is not None:
             self.wall.displacement = self._wall_trial[0]  # chamber_volume() sees the new wall
             self.wall.commit(self._wall_trial, self.density_volume(), self.chamber_volume(), dt,
-                             self.c)
+                             self.c, self._mean_wall_pressure(self.rho))
         vmax = max_speed(self.vx, self.vy)
         self.v_prev = vmax
         self.v_running = max(self.v_running, vmax)
@@ -483,18 +489,59 @@ class CoupledModel:
                                  self.c, globe)
         self._c_last = self.c
 
+    def _mean_wall_pressure(self, rho):
+        """The fluid's mean pressure on the walls behind it [Pa] for the density field rho,
+        weighted by the volume each wall node sweeps when the globe is compliant (globe.py)."""
+        si = self.si
+        tait_pressure_at(self._wall_nodes, rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma,
+                         self._wall_pressure)
+        return float(np.dot(self._wall_pressure_weight, self._wall_pressure))
+
     def _globe_work(self):
         """Work [J] of the fluid on the compliant walls over the step just coupled: the mean wall
         pressure of its two ends times the volume the walls gave way by."""
-        si, wall = self.si, self.wall
-        p_wall = self._wall_pressure
-        tait_pressure_at(wall.nodes, self.rho, si.rho_fluid, si.p0_Pa, self.c, si.tait_gamma,
-                         p_wall)
-        p_start = wall.mean_pressure(p_wall)
-        tait_pressure_at(wall.nodes, self._work["rho_new"], si.rho_fluid, si.p0_Pa, self.c,
-                         si.tait_gamma, p_wall)
-        p_end = wall.mean_pressure(p_wall)
+        wall = self.wall
+        p_start = self._mean_wall_pressure(self.rho)
+        p_end = self._mean_wall_pressure(self._work["rho_new"])
         return 0.5 * (p_start + p_end) * wall.area * (self._wall_trial[0] - wall.displacement)
+
+    def apex_budget(self):
+        """The apex force budget [Pa] of the current state: over the nodes of the apex fit
+        (``apex_fit_nodes``) the balance of the cornea's nodes in the load direction,
+
+            sum m_i a_i = sum F_eq,i + sum F_ve,i + sum a_p,i (p_fluid,i - p_jet,i),
+
+        divided by a = sum a_p,i (a_p,i: the lumped outward area of node i's pressure load,
+        ``add_pressure_loads``), read as the jet pressure that the apex carries:
+
+            p_jet = p_fluid + F_eq / a + F_ve / a - m a / a.
+
+        Returns (p_jet, p_fluid, equilibrium, overstress, inertia): the area-weighted jet and
+        fluid pressures (the IOP included), the equilibrium law's resistance (its internal
+        forces: minus the IOP's membrane tension plus bending and shear), the viscoelastic
+        overstress' and minus the nodes' inertia, their acceleration that of the last step."""
+        region = slice(0, self.n_apex_fit)
+        X, Y = self.X, self.Y
+        Fx, Fy = np.zeros_like(X), np.zeros_like(Y)
+        add_pressure_loads(X, Y, np.ones_like(X), Fx, Fy)
+        area = float(Fy[region].sum())
+        Fx[:] = 0.0
+        Fy[:] = 0.0
+        add_pressure_loads(X, Y, self.p_interface, Fx, Fy)
+        fluid = float(Fy[region].sum()) / area
+        Fx[:] = 0.0
+        Fy[:] = 0.0
+        jet = np.empty_like(X)
+        jet_pressures(self.t, self.chamber.phi_cornea, self.jet, jet)
+        add_pressure_loads(X, Y, jet, Fx, Fy)
+        jet_mean = float(Fy[region].sum()) / area
+        equilibrium = float(self.cornea_model.internal_forces(X, Y)[1][region].sum()) / area
+        overstress = 0.0
+        if self.viscoelastic is not None:
+            total = self.cornea_model.internal_forces(X, Y, self.viscoelastic)[1]
+            overstress = float(total[region].sum()) / area - equilibrium
+        inertia = -float(np.dot(self.cornea_model.mass[region], self.apex_acceleration)) / area
+        return jet_mean, fluid, equilibrium, overstress, inertia
 
     def apex_moment(self):
         """Meridional bending moment at the apex [N m/m], with its viscoelastic overstress."""
@@ -517,6 +564,11 @@ class CoupledModel:
     def wall_volume_change(self):
         """Volume [m^3] by which the compliant walls have given way (0 for a rigid globe)."""
         return 0.0 if self.wall is None else self.wall.area * self.wall.displacement
+
+    def wall_pressure(self):
+        """The fluid's mean pressure on the walls behind it [Pa] (``_mean_wall_pressure``); its
+        deviation from ``globe_pressure`` is the chamber's acoustic ringing."""
+        return self._mean_wall_pressure(self.rho)
 
     def globe_pressure(self):
         """Pressure of the globe's law for the volume the cornea has pushed in [Pa] (the IOP for

@@ -45,6 +45,9 @@ LN10 = math.log(10.0)
 # s: time in which the wall makes up the fluid's volume drift (CompliantWall.commit); short
 # against the puff (~20 ms), long against a solver step (~5 us)
 DRIFT_RELAXATION_TIME = 0.1e-3
+# s: time in which the walls' transmitted give returns (CompliantWall.commit); 1 ms let the
+# chamber ring more (docs/model.md section 11)
+GIVE_RELAXATION_TIME = 0.1e-3
 
 
 def friedenwald_pressure(P0, rigidity_per_m3, dV):
@@ -64,6 +67,15 @@ def swept_area(x_c, x_l):
         x_l ** 3 / 6.0 - x_l * x_c ** 2 / 2.0 + x_c ** 3 / 3.0)
 
 
+def wall_weights(x_wall, x_c, x_l):
+    """The share w(x) [1] of the axial displacement of wall nodes at distances ``x_wall`` [m] from
+    the axis (module docstring), and the weights of the mean wall pressure: the swept volume each
+    node stands for, ~ w x, normalised."""
+    weight = np.clip((x_l - x_wall) / (x_l - x_c), 0.0, 1.0)
+    swept = weight * x_wall
+    return weight, swept / swept.sum()
+
+
 class CompliantWall:
     """The receding walls of the chamber (SI units): one volume degree of freedom.
 
@@ -73,16 +85,12 @@ class CompliantWall:
 
     def __init__(self, x, y, wall_nodes, x_c, x_l, rigidity_per_m3, p0, rho0, mass, gamma):
         self.nodes = np.asarray(wall_nodes)
-        xw = x[self.nodes]
-        self.weight = np.clip((x_l - xw) / (x_l - x_c), 0.0, 1.0)
+        self.weight, self.pressure_weight = wall_weights(x[self.nodes], x_c, x_l)
         self.y0 = y[self.nodes].copy()
         self.area = swept_area(x_c, x_l)
         self.rigidity = rigidity_per_m3
         self.p0, self.rho0, self.gamma = p0, rho0, gamma
         self.mass = float(np.sum(mass))
-        # mean wall pressure, weighted by the swept volume each node stands for (~ w x)
-        pw = self.weight * xw
-        self.pressure_weight = pw / pw.sum()
         self.displacement = 0.0  # d [m], positive backwards (-y)
         self.speed = 0.0  # dd/dt [m/s]
         self.pressure = p0  # the globe's pressure P [Pa]
@@ -91,6 +99,9 @@ class CompliantWall:
         self.volume_offset = 0.0
         self.drift_displacement = 0.0
         self.drift_speed = 0.0
+        # the wall's give under the fluid's acoustic pressure deviation (``commit``)
+        self.transmitted_displacement = 0.0
+        self.transmitted_speed = 0.0
 
     def wall_state(self, cornea_volume_change, cornea_volume_rate, c, dt):
         """Displacement d [m], its rate [m/s] and the globe's pressure P [Pa] at the end of a step
@@ -116,14 +127,32 @@ class CompliantWall:
         dinv_dP = -1.0 / (rho_bar * rho_bar * c * c * (rho_bar / self.rho0) ** (self.gamma - 1.0))
         dP_dt = LN10 * self.rigidity * P * (-cornea_volume_rate)
         swept_rate = -cornea_volume_rate + self.mass * dinv_dP * dP_dt + swept_c_rate
-        return (swept / self.area + self.drift_displacement + self.drift_speed * dt,
-                swept_rate / self.area + self.drift_speed, float(P))
+        extra = self.drift_displacement + self.transmitted_displacement
+        extra_speed = self.drift_speed + self.transmitted_speed
+        return (swept / self.area + extra + extra_speed * dt, swept_rate / self.area + extra_speed,
+                float(P))
 
-    def commit(self, state, fluid_volume, chamber_volume, dt, c):
+    def commit(self, state, fluid_volume, chamber_volume, dt, c, wall_pressure):
         """Accept the wall state of a step of dt [s] with the sound speed c [m/s], and update the
-        drift make-up.
+        drift make-up and the transmitted give.
 
-        The fluid's own volume, sum m_j/rho_j (``fluid_volume`` [m^3]), drifts from the chamber's
+        Transmitted give: the law above places the wall for the cornea's state, whatever the
+        fluid does at the wall, so the wall would reflect every acoustic wave that reaches it and,
+        moving with the cornea, feed the chamber's acoustic mode (it does work on the fluid
+        beyond what the globe's law stores).  The chamber is cut out of a larger eye: behind the
+        wall lies the same fluid (the vitreous), into which a wave passes on.  The wall therefore
+        also gives way at the particle velocity of a plane wave carrying the deviation of the
+        fluid's mean wall pressure ``wall_pressure`` [Pa] from the globe's pressure P,
+
+            u_t = (p_wall - P) / (rho0 c),
+
+        the characteristic (transmitting) boundary condition of the acoustic equations (Engquist
+        and Majda, Math. Comp. 31 (1977) 629), taken over the next step.  It absorbs power
+        (p_wall - P)^2 A_eff / (rho0 c) >= 0, so the wall can no longer feed a mode, and it has
+        no parameter: the impedance rho0 c is the fluid's own.  At rest and in slow motion
+        p_wall = P and u_t = 0, so the globe's law is kept.
+
+        Drift make-up: the fluid's own volume, sum m_j/rho_j (``fluid_volume`` [m^3]), drifts from the chamber's
         geometric volume (``chamber_volume``, with the wall at ``state``) by the discretisation
         error of the continuity equation at the moving cornea: about 0.5 % of the volume pushed
         in at coarse resolution.  Its pressure error, rho c^2 / V times that, grows with c^2.  The
@@ -139,6 +168,9 @@ class CompliantWall:
         target = -drift / self.area
         self.drift_displacement += self.drift_speed * dt
         self.drift_speed = (target - self.drift_displacement) / DRIFT_RELAXATION_TIME
+        self.transmitted_displacement += self.transmitted_speed * dt
+        self.transmitted_speed = ((wall_pressure - self.pressure) / (self.rho0 * c)
+                                  - self.transmitted_displacement / GIVE_RELAXATION_TIME)
 
     def impose(self, d, speed, y, vx, vy):
         """Heights [m] and velocities [m/s] of the wall nodes for the displacement d."""

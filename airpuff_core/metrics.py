@@ -37,11 +37,24 @@ def _crossings(t, f, downward):
     return out
 
 
-def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms):
-    """Return (metrics, notes, extra diagnostics)."""
+BUDGET_PARTS = ("fluid", "equilibrium", "overstress", "inertia")
+
+
+def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms,
+                    step_budget=None):
+    """Return (metrics, notes, extra diagnostics).  ``step_budget`` (steps, 4): the apex force
+    budget at every step [mmHg] (``CoupledModel.apex_budget``: the jet's mean over the apex
+    nodes, fluid pressure, equilibrium resistance, viscoelastic overstress, inertia),
+    interpolated to the applanations like the fluid pressure:
+    P1 = P1_profile + P1_fluid + P1_equilibrium + P1_overstress + P1_inertia + P1_residual, with
+    P1_profile = P1 minus the jet's mean over the apex nodes (its spatial decay) and P1_residual
+    what the discrete balance leaves (likewise P2); CH_<part> = P1_<part> - P2_<part>."""
     nan = math.nan
     m = {k: nan for k in ("P1", "P2", "CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora", "t_A1", "t_A2",
                           "t_HC", "hc_delay", "DA", "v_in_max", "v_out_max")}
+    for part in ("profile",) + BUDGET_PARTS + ("residual",):
+        for k in ("P1", "P2", "CH"):
+            m[f"{k}_{part}"] = nan
     notes = {}
     extra = {}
     disp = hist["apex_displacement"]
@@ -62,6 +75,7 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         m["t_A1"] = tA1
         m["P1"] = jet_apex(tA1)
         extra["fluid_pressure_apex_at_A1"] = step_fluid_p[i] + s * (step_fluid_p[i + 1] - step_fluid_p[i])
+        _split(m, "P1", step_budget, i, s)
         up = [u for u in up if u[0] > tA1]
         if up:
             tA2, i, s = up[-1]
@@ -69,6 +83,7 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
             m["P2"] = jet_apex(tA2)
             extra["fluid_pressure_apex_at_A2"] = (step_fluid_p[i]
                                                   + s * (step_fluid_p[i + 1] - step_fluid_p[i]))
+            _split(m, "P2", step_budget, i, s)
         else:
             for k in ("t_A2", "P2"):
                 notes[k] = "the cornea did not return to convex before the end of the run"
@@ -81,7 +96,21 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         m["IOPcc"] = m["P1"] - 0.43 * m["P2"]
         m["CRF"] = m["P1"] - 0.7 * m["P2"]
         m["IOPcc_ora"] = m["P2"] - 0.43 * m["P1"]
+        for part in ("profile",) + BUDGET_PARTS + ("residual",):
+            m[f"CH_{part}"] = m[f"P1_{part}"] - m[f"P2_{part}"]
     else:
         for k in ("CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora"):
             notes[k] = "needs both applanations"
     return m, notes, extra
+
+
+def _split(m, name, step_budget, i, s):
+    """m[name_<part>]: the apex force budget interpolated between steps i and i + 1 at s, and
+    the residual m[name] minus the parts."""
+    if step_budget is None:
+        return
+    jet_mean, *parts = step_budget[i] + s * (step_budget[i + 1] - step_budget[i])
+    m[f"{name}_profile"] = m[name] - float(jet_mean)
+    for part, value in zip(BUDGET_PARTS, parts):
+        m[f"{name}_{part}"] = float(value)
+    m[f"{name}_residual"] = float(jet_mean) - float(np.sum(parts))

@@ -42,6 +42,7 @@ def probe(model: CoupledModel, full: bool = True) -> dict[str, float]:
         "chamber_volume": model.chamber_volume() * 1e9,
         "wall_volume_change": model.wall_volume_change() * 1e9,
         "globe_pressure": model.globe_pressure() / MMHG_PA,
+        "wall_pressure": model.wall_pressure() / MMHG_PA,
         "coupling_iterations": float(model.last_iterations),
         "sound_speed": model.c,
     }
@@ -49,6 +50,11 @@ def probe(model: CoupledModel, full: bool = True) -> dict[str, float]:
         values["apex_bending_moment"] = model.apex_moment() * 1e3
         values.update(model.energy_terms())
     return values
+
+
+def apex_budget_mmhg(model: CoupledModel) -> tuple[float, ...]:
+    """The apex force budget of the current state (``CoupledModel.apex_budget``) [mmHg]."""
+    return tuple(part / MMHG_PA for part in model.apex_budget())
 
 
 def snapshot(model: CoupledModel) -> dict[str, np.ndarray]:
@@ -82,6 +88,7 @@ class Recorder:
         self.step_t = [0.0]  # ms
         self.step_kappa = [first["apex_curvature"]]
         self.step_fluid_p = [first["fluid_pressure_apex"]]
+        self.step_budget = [apex_budget_mmhg(model)]  # the apex force budget (metrics.py)
         self.snapshots = {label: None for label in SNAPSHOT_LABELS}
         self.snapshot_t = {label: math.nan for label in SNAPSHOT_LABELS}
         self._take("initial", model)
@@ -116,6 +123,7 @@ class Recorder:
         self.step_t.append(t * 1e3)
         self.step_kappa.append(cur["apex_curvature"])
         self.step_fluid_p.append(cur["fluid_pressure_apex"])
+        self.step_budget.append(apex_budget_mmhg(model))
         self._take_event_snapshots(model)
         self._interpolate_histories(model, cur)
         volume0 = self._volume0
@@ -160,7 +168,8 @@ class Recorder:
         metrics, notes, extra = compute_metrics(
             self.out_t * 1e3, hist, np.array(self.step_t), np.array(self.step_kappa),
             np.array(self.step_fluid_p),
-            lambda t_ms: air_jet(t_ms * 1e-3, 0.0, *model.jet) / MMHG_PA, self.t_jet_peak * 1e3)
+            lambda t_ms: air_jet(t_ms * 1e-3, 0.0, *model.jet) / MMHG_PA, self.t_jet_peak * 1e3,
+            np.array(self.step_budget))
         diagnostics = self._diagnostics(model, wall_s)
         diagnostics.update(extra)
         return RunResult(params=model.params, time=self.out_t * 1e3, histories=hist,

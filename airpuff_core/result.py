@@ -36,6 +36,20 @@ METRICS: dict[str, tuple[str, str]] = {
     "v_in_max": ("m/s", "peak inward apex velocity"),
     "v_out_max": ("m/s", "peak outward apex velocity"),
 }
+# the apex force budget at each applanation and its difference, CH's parts (metrics.py,
+# docs/model.md section 7)
+_BUDGET_NAMES = {
+    "profile": "the jet pressure at the apex minus its mean over the apex nodes",
+    "fluid": "fluid pressure under the apex (IOP included)",
+    "equilibrium": "the cornea's equilibrium resistance (internal forces of the elastic law)",
+    "overstress": "the cornea's viscoelastic overstress",
+    "inertia": "minus the inertia of the apex nodes",
+    "residual": "the jet's mean over the apex nodes minus the four parts before",
+}
+for _name, _long in (("P1", "first applanation"), ("P2", "second applanation"),
+                     ("CH", "hysteresis P1 - P2")):
+    for _part, _text in _BUDGET_NAMES.items():
+        METRICS[f"{_name}_{_part}"] = ("mmHg", f"apex force budget, {_long}: {_text}")
 
 # history name -> (unit, long name)
 HISTORIES: dict[str, tuple[str, str]] = {
@@ -49,6 +63,9 @@ HISTORIES: dict[str, tuple[str, str]] = {
                            "(0 with globe=rigid)"),
     "globe_pressure": ("mmHg", "pressure of the globe's pressure-volume law for the volume the "
                        "cornea has pushed in (the IOP with globe=rigid)"),
+    "wall_pressure": ("mmHg", "the fluid's mean pressure on the walls behind it (weighted by the "
+                      "volume each sweeps when compliant); minus globe_pressure: the chamber's "
+                      "acoustic ringing"),
     "apex_bending_moment": ("mN", "meridional bending moment M_s at the apex, per unit length "
                             "(N m/m; 0 for the membrane)"),
     # the energy budget, cumulative from t = 0 (energy.py)

@@ -49,6 +49,14 @@ NO_HISTORY = (np.zeros((5, 1)), np.zeros((1, 5, 1)), np.ones(1), np.zeros(1))
 LIMBUS_CONDITIONS = {"clamped": LIMBUS_CLAMPED, "pinned": LIMBUS_PINNED}
 
 
+def _history_args(history):
+    """(ve_mode, previous, overstress, decay, weight) of the shell kernels: the equilibrium law
+    (mode 0) without a history, its stored overstresses added (mode 1, no update) with one."""
+    if history is None:
+        return (0, *NO_HISTORY)
+    return (1, history.previous, history.overstress, history.decay, history.weight)
+
+
 def plate_rigidity(E0, h, nu):
     """D = E0 h^3 / (12 (1 - nu^2)) [N m] for E0 [Pa], h [m]."""
     return E0 * h ** 3 / (12.0 * (1.0 - nu * nu))
@@ -135,6 +143,16 @@ class ShellModel(MembraneModel):
         shell_internal_forces(X, Y, self.L0, self.S0, self.A0, *self.bending_args(), self.Ebar,
                               self.nu, self.k, self.D, self.work, Fx, Fy, 0, *NO_HISTORY)
         add_pressure_loads(X, Y, q, Fx, Fy)
+        return Fx, Fy
+
+    def internal_forces(self, X, Y, history=None):
+        """The tissue's nodal forces (Fx, Fy) [N] of the state (X, Y) [m] without any pressure:
+        the equilibrium law's, or with ``history`` (a ``ViscoelasticHistory``) the total ones,
+        its stored overstresses added (the apex force budget, ``CoupledModel.apex_budget``)."""
+        Fx, Fy = np.empty_like(X), np.empty_like(Y)
+        shell_internal_forces(X, Y, self.L0, self.S0, self.A0, *self.bending_args(), self.Ebar,
+                              self.nu, self.k, self.D, self.work, Fx, Fy,
+                              *_history_args(history))
         return Fx, Fy
 
     def apex_moment(self, X, Y, overstress=None):
@@ -302,6 +320,13 @@ class MindlinShellModel(ShellModel):
     def mindlin_args(self):
         return (self.L0, self.S0, self.A0, self.psi_ref, self.beta_ref, self.x_mid, self.Ebar,
                 self.nu, self.k, self.D, self.S)
+
+    def internal_forces(self, X, Y, history=None):
+        """As ``ShellModel.internal_forces``, with the directors of the state."""
+        Fx, Fy, T = np.empty_like(X), np.empty_like(Y), np.empty_like(X)
+        mindlin_internal_forces(X, Y, self.beta, *self.mindlin_args(), self.work, Fx, Fy, T,
+                                *_history_args(history))
+        return Fx, Fy
 
     def _director_loads(self, X, Y, beta, Fx, Fy, T):
         mindlin_internal_forces(X, Y, beta, *self.mindlin_args(), self.work, Fx, Fy, T, 0,

@@ -1,0 +1,129 @@
+"""The clinical preset against the artificial sound speed: c0 = 10, 20, 40 m/s (c_slope = 2 c0).
+
+The weakly compressible fluid is right only where the results do not depend on c (docs/model.md
+section 4).  This study runs the clinical preset (normal eye: CCT 0.54 mm) at each IOP and sound
+speed and reports, per run, P1, P2, CH, DA, the chamber's acoustic ringing (rms of the fluid's mean
+wall pressure minus the globe's pressure, t > 1 ms) and the parts of CH at the apex (the apex force
+budget, docs/model.md section 7), and per IOP the largest change of each metric from c0 = 10.
+Tolerances (docs/validation.md): P1, P2 0.2 mmHg, CH 0.3 mmHg, DA 0.01 mm.
+
+    python studies/clinical_sound_speed.py --out soundspeed_paper                       # ~1 h
+    python studies/clinical_sound_speed.py --out soundspeed_fine --resolution fine --IOP 16
+
+Every finished run is kept as <out>/<name>.nc; --reuse reads back a run whose file has the same
+parameters.  A failed run (blow-up) is a row with its message.  The table goes to <out>/table.md
+and <out>/rows.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from airpuff_core import RunParams, SimulationError, simulate
+from airpuff_core.dataset import open_dataset, params_from_dataset, write_netcdf
+
+TOLERANCE = {"P1": 0.2, "P2": 0.2, "CH": 0.3, "DA": 0.01}
+PARTS = ("CH_profile", "CH_fluid", "CH_equilibrium", "CH_overstress", "CH_inertia", "CH_residual")
+
+
+def ringing_rms(ds) -> float:
+    """rms [mmHg] of the fluid's mean wall pressure minus the globe's pressure, t > 1 ms."""
+    if "wall_pressure" not in ds:
+        return math.nan
+    t = ds["time"].values
+    dev = (ds["wall_pressure"] - ds["globe_pressure"]).values[t > 1.0]
+    return float(np.sqrt(np.nanmean(dev ** 2)))
+
+
+def row_of(ds) -> dict:
+    row = {k: float(ds[k]) for k in ("P1", "P2", "CH", "DA", "IOPg", "t_A1", "t_A2")}
+    row["ringing_rms"] = ringing_rms(ds)
+    for k in PARTS:
+        row[k] = float(ds[k]) if k in ds else math.nan
+    row["wall_s"] = float(ds.attrs.get("solver_wall_s", math.nan))
+    return row
+
+
+def run(name, params, out, reuse):
+    nc = out / f"{name}.nc"
+    if reuse and nc.exists():
+        with open_dataset(nc) as ds:
+            if params_from_dataset(ds).to_dict() == params.to_dict():
+                return {"status": "ok", **row_of(ds)}
+    t0 = time.perf_counter()
+    try:
+        result = simulate(params)
+    except SimulationError as err:
+        return {"status": "failed", "message": str(err), "wall_s": time.perf_counter() - t0}
+    write_netcdf(result.to_dataset(), nc)
+    with open_dataset(nc) as ds:
+        return {"status": "ok", **row_of(ds)}
+
+
+def table(rows, c0s, iops) -> str:
+    cols = ("P1", "P2", "CH", "DA", "ringing_rms") + PARTS
+    lines = ["| IOP | c0 | " + " | ".join(cols) + " | status |",
+             "|" + "---|" * (len(cols) + 3)]
+    for iop in iops:
+        for c0 in c0s:
+            r = rows[f"IOP{iop:g}_c{c0:g}"]
+            if r["status"] != "ok":
+                lines.append(f"| {iop:g} | {c0:g} | " + " | ".join("" for _ in cols)
+                             + f" | {r['message']} |")
+                continue
+            fmt = ["%.3f" % r[k] if k == "DA" else "%.2f" % r[k] for k in cols]
+            lines.append(f"| {iop:g} | {c0:g} | " + " | ".join(fmt) + " | ok |")
+    lines += ["", "Largest change from c0 = %g (tolerance):" % c0s[0], "",
+              "| IOP | " + " | ".join(f"{k} ({v:g})" for k, v in TOLERANCE.items()) + " | within |",
+              "|" + "---|" * (len(TOLERANCE) + 2)]
+    for iop in iops if len(c0s) > 1 else ():
+        base = rows[f"IOP{iop:g}_c{c0s[0]:g}"]
+        others = [rows[f"IOP{iop:g}_c{c0:g}"] for c0 in c0s[1:]]
+        if base["status"] != "ok" or any(o["status"] != "ok" for o in others):
+            lines.append(f"| {iop:g} | " + " | ".join("failed" for _ in TOLERANCE) + " | no |")
+            continue
+        change = {k: max(abs(o[k] - base[k]) for o in others) for k in TOLERANCE}
+        ok = all(change[k] < TOLERANCE[k] for k in TOLERANCE)
+        lines.append(f"| {iop:g} | " + " | ".join(
+            ("%.4f" if k == "DA" else "%.3f") % change[k] for k in TOLERANCE)
+            + f" | {'yes' if ok else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--resolution", default="paper", choices=("coarse", "paper", "fine"))
+    ap.add_argument("--c0", default="10,20,40", help="base sound speeds [m/s]; c_slope = 2 c0")
+    ap.add_argument("--IOP", default="10,16,25", help="true IOPs [mmHg]")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="any other run parameter")
+    ap.add_argument("--reuse", action="store_true")
+    args = ap.parse_args(argv)
+    c0s = [float(v) for v in args.c0.split(",")]
+    iops = [float(v) for v in args.IOP.split(",")]
+    extra = dict(s.split("=", 1) for s in args.set)
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = {}
+    for iop in iops:
+        for c0 in c0s:
+            name = f"IOP{iop:g}_c{c0:g}"
+            params = RunParams.from_dict({"model": "clinical", "thickness": 0.54, "IOP": iop,
+                                          "c0": c0, "c_slope": 2 * c0,
+                                          "resolution": args.resolution, **extra})
+            rows[name] = run(name, params, args.out, args.reuse)
+            print(name, json.dumps(rows[name]), flush=True)
+            (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
+    text = table(rows, c0s, iops)
+    (args.out / "table.md").write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
