@@ -7,8 +7,8 @@ wall pressure minus the globe's pressure, t > 1 ms) and the parts of CH at the a
 budget, docs/model.md section 7), and per IOP the largest change of each metric from c0 = 10.
 Tolerances (docs/validation.md): P1, P2 0.2 mmHg, CH 0.3 mmHg, DA 0.01 mm.
 
-    python studies/clinical_sound_speed.py --out soundspeed_paper                       # ~1 h
-    python studies/clinical_sound_speed.py --out soundspeed_fine --resolution fine --IOP 16
+    python -m studies.clinical_sound_speed --out soundspeed_paper                       # ~1 h
+    python -m studies.clinical_sound_speed --out soundspeed_fine --resolution fine --IOP 16
 
 Every finished run is kept as <out>/<name>.nc; --reuse reads back a run whose file has the same
 parameters.  A failed run (blow-up) is a row with its message.  The table goes to <out>/table.md
