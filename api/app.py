@@ -28,7 +28,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from airpuff_core import __version__
 from airpuff_core.params import PARAMETERS
 
-from . import auth, db, pages, routes, schemas
+from . import auth, corrections, db, pages, routes, schemas
 from .settings import Settings
 
 log = logging.getLogger("airpuff.api")
@@ -306,5 +306,6 @@ def create_app(settings: Settings) -> FastAPI:
                             headers={"Retry-After": "2"})
 
     app.include_router(routes.build_router(settings, SweepRequest, bearer_scheme))
+    app.include_router(corrections.build_corrections_router(settings, bearer_scheme))
     app.include_router(pages.router(settings, SweepRequest, _describe))
     return app

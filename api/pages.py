@@ -28,7 +28,7 @@ from starlette.concurrency import run_in_threadpool
 from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, SWEPT
 from airpuff_core.result import METRICS
 
-from . import auth, db, figures, jobs, sweep_form
+from . import auth, corrections, db, figures, jobs, sweep_form
 from .html import badge, esc, number, page, progress, table, watch_state, when
 from .settings import Settings
 from .status import ACTIVE_JOB_STATUSES
@@ -176,8 +176,9 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
         if loaded is None:
             return not_found(job_id)
         job, records = loaded
-        body = (_job_header(job) + _figures(job, records, point) + _metrics_table(records)
-                + _failures(records) + _request_table(job["request"]))
+        body = (_job_header(job) + _figures(job, records, point)
+                + corrections.page_section(settings, con, db.get_job(con, job_id))
+                + _metrics_table(records) + _failures(records) + _request_table(job["request"]))
         active = job["status"] in ACTIVE_JOB_STATUSES
         watch = (f"/sweeps/{job['id']}", watch_state([job])) if active else None
         return html(f"job {job['id'][:8]}", body, watch=watch)

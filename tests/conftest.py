@@ -62,3 +62,15 @@ def client(server):
     """An HTTP client of the module's ``server`` fixture (a ``ServerProcess``), with its token."""
     with server.client() as c:
         yield c
+
+
+@pytest.fixture(scope="session")
+def coarse_sweep(tmp_path_factory):
+    """A real 2 x 2 x 2 coarse sweep (E0 x IOP x thickness) through the real CLI: the sweep.nc
+    (its points in the folder beside it) of the correction tests, CLI and HTTP."""
+    out = tmp_path_factory.mktemp("correct") / "sweep"
+    proc = airpuff("sweep", "--E0", "0.4,0.7", "--IOP", "12,22", "--thickness", "0.45,0.6",
+                   "--resolution", "coarse", "--workers", "2", "--json", "--out", str(out),
+                   timeout=1200)
+    assert proc.returncode == 0, proc.stderr
+    return out / "sweep.nc"

@@ -220,17 +220,6 @@ def test_sobol_indices_of_an_additive_function_match_the_closed_form():
     assert abs(m["S1"]["thickness"]) < 0.01 and abs(m["ST"]["thickness"]) < 0.01
 
 
-@pytest.fixture(scope="module")
-def coarse_sweep(tmp_path_factory):
-    """A real 2 x 2 x 2 coarse sweep (E0 x IOP x thickness) through the real CLI."""
-    out = tmp_path_factory.mktemp("correct") / "sweep"
-    proc = airpuff("sweep", "--E0", "0.4,0.7", "--IOP", "12,22", "--thickness", "0.45,0.6",
-                   "--resolution", "coarse", "--workers", "2", "--json", "--out", str(out),
-                   timeout=1200)
-    assert proc.returncode == 0, proc.stderr
-    return out / "sweep.nc"
-
-
 @pytest.mark.slow
 @pytest.mark.cluster
 @pytest.mark.parametrize("instrument, header, row", [
