@@ -119,7 +119,8 @@ class SweepTable:
 
     @classmethod
     def from_netcdf(cls, path, names=MEASURABLE) -> "SweepTable":
-        """The metrics ``names`` (default the measurable ones) of a combined sweep.nc."""
+        """The metrics ``names`` (default the measurable ones; None: every metric of
+        ``METRICS`` that the file has) of a combined sweep.nc."""
         from airpuff_core.dataset import open_dataset
 
         try:
@@ -130,6 +131,8 @@ class SweepTable:
             raise IdentifyError("sweep", f"cannot read sweep file {str(path)!r}: "
                                          f"{type(err).__name__}") from None
         with ds:
+            if names is None:
+                names = [n for n in METRICS if n in ds.variables]
             missing = [n for n in ("E0", "IOP", "thickness", "pmax", "status", *names)
                        if n not in ds.variables]
             if missing:

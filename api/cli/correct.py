@@ -69,7 +69,7 @@ def add_correct_parser(sub) -> None:
         "(Saltelli sampling of the surrogate over the sweep's box, uniform)."))
     s.add_argument("--sweep", required=True, metavar="SWEEP_NC", help="combined sweep.nc")
     s.add_argument("--metrics", default=None, metavar="LIST",
-                   help="comma list of metrics (default: all)")
+                   help="comma list of metrics (default: every metric the sweep has)")
     s.add_argument("--samples", default="1024", metavar="N",
                    help="SALib base sample size N, a power of 2 from 64 to 65536 (default 1024)")
     s.add_argument("--max-degree", default=str(MAX_DEGREE), metavar="D",
@@ -228,13 +228,13 @@ def sensitivity_command(args) -> int:
                 raise CorrectionError("metrics", f"invalid --metrics {args.metrics!r}: accepted "
                                                  "a comma list of " + ", ".join(METRICS))
         else:
-            metrics = list(METRICS)
+            metrics = None  # every metric the sweep has
         n = _whole("samples", args.samples, 64, 65536)
         if n & (n - 1):
             raise CorrectionError("samples", f"invalid --samples {args.samples!r}: accepted a "
                                              "power of 2 from 64 to 65536")
         max_degree = _whole("max-degree", args.max_degree, 1, 4)
-        table = SweepTable.from_netcdf(args.sweep, tuple(metrics))
+        table = SweepTable.from_netcdf(args.sweep, None if metrics is None else tuple(metrics))
         result = sobol_indices(table, metrics, n_base=n, max_degree=max_degree)
     except (CorrectionError, IdentifyError) as err:
         return _fail(err)
