@@ -6,9 +6,10 @@ are scalar coordinates and global attributes, the full set as the JSON attribute
 ``parameters_json``.
 
 CF-1.10 (checked with the IOOS compliance-checker, ``tools/cf_check.py``): a coordinate named
-``time`` is a CF time coordinate, so its units are ``ms since <reference>``.  The simulated puff has
-no calendar date: the reference instant ``TIME_REFERENCE`` stands for t = 0, the start of the run.
-xarray would decode such a coordinate into dates; ``open_dataset`` keeps it in milliseconds.
+``time`` is a CF time coordinate, so its units are ``milliseconds since <reference>``.  The
+simulated puff has no calendar date: the reference instant ``TIME_REFERENCE`` stands for t = 0, the
+start of the run.  ``open_dataset`` keeps ``time`` in milliseconds; plain ``xarray.open_dataset``
+decodes it into ``datetime64[ns]`` dates, exactly (``time_coordinate``).
 """
 
 from __future__ import annotations
@@ -27,14 +28,35 @@ from .version import __version__
 
 CONVENTIONS = "CF-1.10"
 TIME_REFERENCE = "1970-01-01 00:00:00"  # stands for t = 0: a simulation has no calendar date
-TIME_UNITS = f"ms since {TIME_REFERENCE}"
+# "milliseconds", not "ms": xarray decodes "ms since" through cftime, to whole microseconds (a
+# run with output_interval 1e-5 ms read back 1,001 distinct times out of 100,001), and
+# "milliseconds since" with pandas, to nanoseconds.
+TIME_UNITS = f"milliseconds since {TIME_REFERENCE}"
+
+
+def decodable_ms(values_ms) -> np.ndarray:
+    """Times [ms] that xarray's default decoding turns into the nearest nanosecond exactly.
+
+    xarray decodes a float time t [ms] as ``int64(t * 1e6)`` nanoseconds: a truncation, so a
+    product that falls just below its integer (t = 153 * 0.0137 ms gives 2096099.9999999998 ns)
+    loses a whole nanosecond.  Such a t is raised by a few units in its last place (relative
+    1e-16) until ``t * 1e6`` is not below round(t * 1e6); every other t is kept bit for bit."""
+    t = np.array(values_ms, dtype=float)
+    nanoseconds = np.round(t * 1e6)
+    for _ in range(16):
+        low = t * np.int64(1_000_000) < nanoseconds
+        if not low.any():
+            break
+        t[low] = np.nextafter(t[low], np.inf)
+    return t
 
 
 def time_coordinate(values_ms) -> tuple:
     """The ``time`` coordinate [ms since the start of the run], as CF-1.10 wants a time axis:
-    standard_name ``time``, axis ``T``, units ``ms since <reference>`` and a calendar (the
-    writer adds no _FillValue to it, ``write_netcdf``)."""
-    return ("time", np.asarray(values_ms, float),
+    standard_name ``time``, axis ``T``, units ``milliseconds since <reference>`` and a calendar
+    (the writer adds no _FillValue to it, ``write_netcdf``); values as ``decodable_ms`` makes
+    them."""
+    return ("time", decodable_ms(values_ms),
             {"units": TIME_UNITS, "calendar": "proleptic_gregorian", "standard_name": "time",
              "axis": "T", "long_name": "time since the start of the run (the reference date "
                                        "stands for t = 0)"})

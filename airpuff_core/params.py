@@ -29,10 +29,10 @@ UL_M3 = 1e-9  # m^3 per microlitre
 # many intervals cost minutes and gigabytes for one run (3e6 samples: 48 s, 0.5 GB).
 MAX_HISTORY_INTERVALS = 100_000
 
-# A number written as text (command line, form): optional sign, digits with an optional decimal
-# point, optional exponent.  Stricter than float(), which also takes "1_0" (as 10), "1_000",
-# "infinity" and "nan".
-DECIMAL = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+# A number written as text (command line, form): optional sign, ASCII digits with an optional
+# decimal point, optional exponent.  Stricter than float(), which also takes "1_0" (as 10),
+# "1_000", "infinity", "nan" and digits of other scripts (the full-width "０.５").
+DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
 
 
 def parse_decimal(text: str) -> float:
@@ -41,6 +41,14 @@ def parse_decimal(text: str) -> float:
     if not DECIMAL.fullmatch(text.strip()):
         raise ValueError(f"not a decimal number: {text!r}")
     return float(text)
+
+
+def parse_whole(text: str) -> int:
+    """The whole number written in ``text`` in ASCII digits (surrounding white space allowed);
+    raises ValueError otherwise (``int`` would also take "1_0" and the full-width "１０")."""
+    if not re.fullmatch(r"[+-]?[0-9]+", text.strip()):
+        raise ValueError(f"not a whole number: {text!r}")
+    return int(text)
 
 
 # The prestretch lambda0 that balances the IOP is sought below this (docs/model.md section 3); a

@@ -22,6 +22,7 @@ import ast
 import functools
 import hashlib
 import subprocess
+import threading
 from importlib import metadata
 from pathlib import Path
 
@@ -63,10 +64,21 @@ def model_version_of(package_dir: Path) -> str:
     return digest.hexdigest()[:12]
 
 
-@functools.cache
+_model_version: str | None = None
+# ``ast.parse`` is not safe to run in two threads at once on every CPython (3.11 raises
+# "SystemError: AST constructor recursion depth mismatch"): the hash is computed by one thread
+# while the others wait for it.
+_model_version_lock = threading.Lock()
+
+
 def model_version() -> str:
-    """The model version of this installation (computed once per process)."""
-    return model_version_of(PACKAGE_DIR)
+    """The model version of this installation (computed once per process, by one thread)."""
+    global _model_version
+    if _model_version is None:
+        with _model_version_lock:
+            if _model_version is None:
+                _model_version = model_version_of(PACKAGE_DIR)
+    return _model_version
 
 
 @functools.cache

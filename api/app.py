@@ -1,5 +1,5 @@
 """The FastAPI application: settings, lifespan (the job runner), the checks before any route runs
-(token, body size, content type, encoding: ``RequestGuard``), error format.
+(Host, token, body size, content type, encoding, unknown keys: ``RequestGuard``), error format.
 
 The routes are in ``api.routes``, the browser pages in ``api.pages``.
 
@@ -11,10 +11,13 @@ only the runner thread uses it).
 """
 
 
+import json
 import logging
 import re
 import sqlite3
 from contextlib import asynccontextmanager
+
+import anyio
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.encoders import jsonable_encoder
@@ -22,13 +25,16 @@ from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from fastapi.security import HTTPBearer
+from pydantic import BaseModel, ValidationError
 from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from airpuff_core import __version__
 from airpuff_core.params import PARAMETERS
+from airpuff_core.provenance import model_version
 
 from . import auth, corrections, db, pages, routes, schemas
+from .hosts import HostAllowList
 from .settings import Settings
 
 log = logging.getLogger("airpuff.api")
@@ -69,6 +75,59 @@ def _request_keys() -> list[str]:
     return _REQUEST_KEYS
 
 
+# A 422 lists at most this many errors, then one line saying how many more there are: a body of
+# 60,000 unknown keys would otherwise get 60,000 entries (30 MB).
+MAX_ERRORS = 20
+
+
+def validation_problem(errors: list[dict], total: int | None = None) -> JSONResponse:
+    """The 422 of a request with ``errors`` (pydantic's or this module's), the first
+    ``MAX_ERRORS`` described (``_describe``) and the rest counted: ``total`` errors in all
+    (default ``len(errors)``)."""
+    total = len(errors) if total is None else total
+    detail = [_describe(e) for e in errors[:MAX_ERRORS]]
+    if total > len(detail):
+        detail.append({"loc": ["body"], "field": "body", "type": "too_many_errors",
+                       "msg": f"body: {total - len(detail)} more errors not listed ({total} in "
+                              f"all; the first {len(detail)} are above)"})
+    return JSONResponse({"detail": jsonable_encoder(detail)}, 422)
+
+
+def _unknown_key_error(key: str, model: type[BaseModel]) -> dict:
+    return {"loc": ["body", key[:80]], "field": key[:80], "type": "extra_forbidden",
+            "msg": f"{key[:80]}: unknown parameter; accepted keys are "
+                   + ", ".join(model.model_fields)}
+
+
+def check_json_body(model: type[BaseModel], body: bytes) -> JSONResponse | None:
+    """The 422 of a JSON body that ``model`` refuses, or None (the route then parses and
+    validates the body itself, and reports malformed JSON with its line and column).
+
+    Unknown top-level keys are refused before pydantic sees the body (it would build one error
+    per key).  Run in a worker thread (``RequestGuard``): a body of up to ``max_body_bytes`` can
+    take a second to validate, which must not stop the event loop from answering others."""
+    try:
+        data = json.loads(body)
+    except (ValueError, RecursionError):
+        return None
+    if not isinstance(data, dict):
+        return None
+    accepted = model.model_fields.keys()  # a property: built once here, not once per key
+    unknown = [key for key in data if key not in accepted]
+    if unknown:
+        return validation_problem([_unknown_key_error(k, model) for k in unknown[:MAX_ERRORS]],
+                                  len(unknown))
+    try:
+        model.model_validate(data)
+    except ValidationError as err:
+        errors = err.errors(include_url=False)
+        return validation_problem([{**e, "loc": ["body", *e["loc"]]} for e in errors],
+                                  err.error_count())
+    except RecursionError:
+        return None
+    return None
+
+
 # -- checks before any route runs (plain ASGI middleware) ---------------------------------------
 
 # Paths open without the token: liveness, and the API's description (/docs loads /openapi.json
@@ -96,9 +155,16 @@ def _problem(status_code: int, field: str, msg: str, typ: str,
                         status_code, headers=headers)
 
 
+# Sent with every answer: no other site may show the pages in a frame (clickjacking).
+SECURITY_HEADERS = ((b"x-frame-options", b"DENY"),
+                    (b"content-security-policy", b"frame-ancestors 'none'"),
+                    (b"x-content-type-options", b"nosniff"))
+
+
 class RequestGuard:
     """What is checked before a route or a body parser runs, in this order:
 
+    0. the ``Host`` header, against the allow-list of ``api.hosts`` (DNS rebinding): else 400;
     1. the credentials, when a token is set (every path but ``PUBLIC_PATHS`` and the pages'
        ``pages.OPEN_PATHS``, the login and logout forms, which make their own checks):
 
@@ -109,19 +175,20 @@ class RequestGuard:
     2. the body size, from Content-Length and as the body arrives: 413;
     3. a body's content type: JSON for the API, ``application/x-www-form-urlencoded`` for the
        pages' forms (``pages.FORM_PATHS``); another one gets 415 naming ``content-type``;
-    4. the encoding: a charset other than UTF-8 gets 415, a JSON body in UTF-16/32 422.
+    4. the encoding: a charset other than UTF-8 gets 415, a JSON body in UTF-16/32 422;
+    5. a JSON body of a path in ``bodies`` (path -> its request model): unknown keys, then the
+       model, in a worker thread (``check_json_body``): else 422, at most ``MAX_ERRORS`` listed.
 
     The body is read here (at most ``limit`` bytes, after the credentials) and handed on unchanged.
-    The token and cookie comparisons are ``api.auth``'s.
+    The token and cookie comparisons are ``api.auth``'s.  Every answer carries
+    ``SECURITY_HEADERS``.
     """
 
-    def __init__(self, app, limit: int, token: str | None):
+    def __init__(self, app, limit: int, token: str | None, hosts: HostAllowList,
+                 bodies: dict[str, type[BaseModel]]):
         self.app, self.limit = app, limit
         self.token = token or None
-
-    def _bearer_ok(self, headers: Headers) -> bool:
-        scheme, _, credentials = headers.get("authorization", "").partition(" ")
-        return scheme.lower() == "bearer" and auth.token_matches(credentials.strip(), self.token)
+        self.hosts, self.bodies = hosts, bodies
 
     def _refusal(self, scope) -> Response | None:
         """The answer to a request without the credentials its path needs; None if it may go on."""
@@ -131,7 +198,7 @@ class RequestGuard:
         request = Request(scope)  # headers and cookies only: the body is not read
         if pages.is_page(path):
             return None if auth.session_ok(request, self.token) else pages.login_redirect(request)
-        if self._bearer_ok(request.headers) or (scope["method"] in auth.SAFE_METHODS
+        if auth.bearer_ok(request, self.token) or (scope["method"] in auth.SAFE_METHODS
                                                 and auth.session_ok(request, self.token)):
             return None
         return JSONResponse({"detail": "missing or wrong bearer token"}, 401,
@@ -140,7 +207,22 @@ class RequestGuard:
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+
+        async def send_with_headers(message):
+            if message["type"] == "http.response.start":
+                message = {**message, "headers": [*message.get("headers", ()),
+                                                   *SECURITY_HEADERS]}
+            await send(message)
+
+        return await self._guard(scope, receive, send_with_headers)
+
+    async def _guard(self, scope, receive, send):
         headers = Headers(scope=scope)
+        if not self.hosts.allows(headers.get("host")):
+            return await _problem(
+                400, "host", f"host: {headers.get('host', '')[:80]!r} is not a name of this "
+                             f"server; accepted: {self.hosts.describe()} (more with `airpuff "
+                             "serve --allowed-hosts`)", "host_not_allowed")(scope, receive, send)
         answer = self._refusal(scope)
         if answer is None and not self._length_ok(headers.get("content-length")):
             answer = self._too_big()
@@ -160,6 +242,9 @@ class RequestGuard:
             if not message.get("more_body", False):
                 break
         answer = self._check_body(headers, bytes(body), form=scope["path"] in pages.FORM_PATHS)
+        model = self.bodies.get(scope["path"]) if scope["method"] == "POST" else None
+        if answer is None and model is not None and body:
+            answer = await anyio.to_thread.run_sync(check_json_body, model, bytes(body))
         if answer is not None:
             return await answer(scope, receive, send)
         sent = False
@@ -248,6 +333,7 @@ def create_app(settings: Settings) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         db.init(settings.db_path)
+        model_version()  # computed once, before any request needs a point key
         settings.points_dir.mkdir(parents=True, exist_ok=True)
         settings.jobs_dir.mkdir(parents=True, exist_ok=True)
         runner = None
@@ -281,12 +367,16 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan, openapi_url=None, docs_url=None, redoc_url=None)
     app.state.settings = settings
     app.state.runner = None
-    app.add_middleware(RequestGuard, limit=settings.max_body_bytes, token=settings.token)
+    app.add_middleware(RequestGuard, limit=settings.max_body_bytes, token=settings.token,
+                       hosts=HostAllowList(settings.bind_address, settings.allowed_hosts),
+                       bodies={"/sweeps": SweepRequest, "/identify": schemas.IdentifyRequest})
 
     @app.exception_handler(RequestValidationError)
     async def on_validation_error(request: Request, exc: RequestValidationError):
-        detail = _json_error_position(exc) or [_describe(e) for e in exc.errors()]
-        return JSONResponse({"detail": jsonable_encoder(detail)}, 422)
+        position = _json_error_position(exc)
+        if position:
+            return JSONResponse({"detail": jsonable_encoder(position)}, 422)
+        return validation_problem(exc.errors())
 
     @app.exception_handler(StarletteHTTPException)
     async def on_http_error(request: Request, exc: StarletteHTTPException):

@@ -40,6 +40,12 @@ def session_ok(request: Request, token: str) -> bool:
                                                          session_value(token).encode())
 
 
+def bearer_ok(request: Request, token: str) -> bool:
+    """True if the request carries ``Authorization: Bearer <token>``."""
+    scheme, _, credentials = request.headers.get("authorization", "").partition(" ")
+    return scheme.lower() == "bearer" and token_matches(credentials.strip(), token)
+
+
 def same_origin(request: Request) -> bool:
     """True unless the browser says the request comes from another site (Origin or Referer with a
     different host:port).  A second guard, after SameSite=Strict, for the pages' POST forms."""

@@ -101,12 +101,54 @@ def write(con: sqlite3.Connection) -> Iterator[sqlite3.Connection]:
         con.execute("COMMIT")
 
 
+SQLITE_HEADER = b"SQLite format 3\x00"  # the first 16 bytes of every SQLite database file
+
+
+class DatabaseUnusable(RuntimeError):
+    """The job database cannot be used as it is (damaged, not a database, or of a newer schema
+    than this version knows); the message is one line naming the file and what to do."""
+
+
+def _refuse_damaged(path: Path, what: str) -> DatabaseUnusable:
+    return DatabaseUnusable(
+        f"the job database {path} is damaged ({what}): move it aside (or restore it from a "
+        "backup) and start again; a new database is then created, the computed points in "
+        "points/ are kept and reused, the records of the jobs are lost")
+
+
+def check(con: sqlite3.Connection, path: Path) -> None:
+    """Refuse a database this version must not touch: one of a newer schema (never downgraded)
+    or one that SQLite's ``PRAGMA quick_check`` finds damaged (checked at every start-up: a
+    page overwritten mid-file would otherwise make every later query fail)."""
+    version = con.execute("PRAGMA user_version").fetchone()[0]
+    if version > SCHEMA_VERSION:
+        raise DatabaseUnusable(
+            f"the job database {path} has schema version {version}, newer than the version "
+            f"{SCHEMA_VERSION} this airpuff knows: run the airpuff that wrote it, or use another "
+            "--data-dir (it is left as it is)")
+    problems = [row[0] for row in con.execute("PRAGMA quick_check(3)")]
+    if problems != ["ok"]:
+        raise _refuse_damaged(path, "; ".join(" ".join(p.split()) for p in problems)[:300])
+
+
 def init(path: str | Path) -> None:
     """Create the database (and its folder) if needed, or bring one of an older schema version to
-    this one, keeping its jobs and points."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    con = connect(path)
+    this one, keeping its jobs and points.  Raises ``DatabaseUnusable`` for a file that is not an
+    SQLite database, is damaged (``check``) or has a newer schema."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_file() and path.stat().st_size > 0:
+        with open(path, "rb") as fh:
+            if fh.read(len(SQLITE_HEADER)) != SQLITE_HEADER:
+                raise _refuse_damaged(path, "it is not an SQLite database file")
     try:
+        con = connect(path)
+    except sqlite3.OperationalError:
+        raise
+    except sqlite3.DatabaseError as err:
+        raise _refuse_damaged(path, str(err)) from None
+    try:
+        check(con, path)
         with write(con):
             for stmt in SCHEMA.split(";"):
                 if stmt.strip():
@@ -116,6 +158,10 @@ def init(path: str | Path) -> None:
             if set(DROPPED_POINT_COLUMNS) & _columns(con, "points"):  # schema version 1 or 2
                 _rebuild_points_table(con)
             con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+    except sqlite3.OperationalError:  # busy, locked, a full disk: not the file's fault
+        raise
+    except sqlite3.DatabaseError as err:  # "file is not a database", "disk image is malformed"
+        raise _refuse_damaged(path, str(err)) from None
     finally:
         con.close()
 
@@ -169,8 +215,8 @@ JOB_COLUMNS = """
     j.error, j.retry_failed,
     (SELECT COUNT(*) FROM job_points p WHERE p.job_id = j.id AND p.status = 'ok') AS n_ok,
     (SELECT COUNT(*) FROM job_points p WHERE p.job_id = j.id AND p.status = 'failed') AS n_failed,
-    (SELECT COUNT(*) FROM job_points p WHERE p.job_id = j.id AND p.status = 'ok'
-                                           AND p.reused = 1) AS n_reused
+    (SELECT COUNT(*) FROM job_points p WHERE p.job_id = j.id AND p.reused = 1
+                                           AND p.status IN ('ok', 'failed')) AS n_reused
 """
 
 

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from airpuff_core.atomic import atomic_write
+from airpuff_core.atomic import TEMP_SUFFIX, atomic_write
 from airpuff_core.result import METRICS
 
 from .settings import Settings
@@ -43,6 +43,7 @@ HEATMAP_METRICS = ("DA", "CH")
 NAME_RE = re.compile(r"^(ora-(%s)|heatmap-(%s)|history-\d{1,9})$"
                      % ("|".join(ORA_METRICS), "|".join(HEATMAP_METRICS)))
 HISTORY_TIMEOUT_S = 120.0
+UNREADABLE_EXIT = 3  # exit code of ``python -m api.figures`` when the point file cannot be read
 DPI = 100
 
 # Matplotlib's font and text caches are shared by all figures of a process: one drawing at a time.
@@ -168,17 +169,27 @@ def job_figure(settings: Settings, job: dict[str, Any], records: list[dict[str, 
 
 
 def _draw_history(settings: Settings, key: str, out: Path) -> None:
-    from sweep.storage import point_path
+    """Draw the history of the point ``key`` into ``out`` (a child process reads its file).  A
+    point file the child cannot read is set aside (``sweep.storage.set_aside``: the next job
+    that needs the point computes it again) and the figure is unavailable, saying so."""
+    from sweep.storage import DAMAGED_SUBDIR, point_path, set_aside
 
     nc = point_path(settings.points_dir, key)
     if not nc.is_file():
-        raise FigureUnavailable(f"history of point {key}: its file is missing")
+        raise FigureUnavailable(f"the file of point {key} is missing")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".tmp-{os.getpid()}-{threading.get_ident()}-{out.name}")
+    # named as atomic_write names its temporary files, so that a start-up clears it if left
+    tmp = out.with_name(f".{out.name}.{os.getpid()}-{threading.get_ident()}{TEMP_SUFFIX}")
     try:
         proc = subprocess.run([sys.executable, "-m", "api.figures", str(nc), str(tmp)],
                               capture_output=True, text=True, timeout=HISTORY_TIMEOUT_S,
                               cwd=Path(__file__).resolve().parents[1])
+        if proc.returncode == UNREADABLE_EXIT:
+            reason = (proc.stderr.strip().splitlines() or ["unreadable"])[-1]
+            set_aside(settings.points_dir, key, nc, reason)
+            raise FigureUnavailable(f"the file of point {key} could not be read; it was moved "
+                                    f"to points/{DAMAGED_SUBDIR}/ and the next job that needs "
+                                    "the point computes it again")
         if proc.returncode != 0 or not tmp.is_file():
             raise RuntimeError(f"drawing the history of point {key} failed: "
                                + (proc.stderr.strip().splitlines() or ["no output"])[-1])
@@ -194,8 +205,13 @@ def main(argv: list[str]) -> int:
     from airpuff_core.plots import plot_apex_and_jet
 
     nc, out = argv
-    with open_dataset(nc, engine="netcdf4") as ds:  # time in ms, not decoded into dates
-        plot_apex_and_jet(ds.load(), out)
+    try:
+        with open_dataset(nc, engine="netcdf4") as ds:  # time in ms, not decoded into dates
+            ds = ds.load()
+    except Exception as err:  # noqa: BLE001 - any reason the file cannot be read
+        sys.stderr.write(f"unreadable: {type(err).__name__}: {' '.join(str(err).split())}\n")
+        return UNREADABLE_EXIT
+    plot_apex_and_jet(ds, out)
     return 0
 
 

@@ -191,8 +191,9 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
         job, records = loaded
         try:
             data, final = figures.job_figure(settings, job, records, name)
-        except figures.FigureUnavailable:
-            return html("not found", f"<h1>No figure {esc(name)} for this job</h1>", 404)
+        except figures.FigureUnavailable as why:
+            reason = f"<p>{esc(why)}</p>" if str(why) != name else ""
+            return html("not found", f"<h1>No figure {esc(name)} for this job</h1>{reason}", 404)
         cache = "private, max-age=86400" if final else "no-store"
         return Response(data, media_type="image/png", headers={"Cache-Control": cache})
 

@@ -22,7 +22,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from airpuff_core import __version__
 from sweep.identification import MEASURABLE, IdentifyError, SweepTable, identify
 
-from . import db, jobs, schemas
+from . import auth, db, jobs, schemas
 from .jobs import create_job, get_db, job_info, point_records, problem_422
 from .settings import Settings
 
@@ -37,9 +37,14 @@ def job_or_404(con, job_id: str) -> sqlite3.Row:
 # -- routes ---------------------------------------------------------------------------------------
 
 def health(request: Request):
+    """Open to all; the runner's error and workers (which may name the scheduler's address)
+    only with the token, when one is set."""
     runner = request.app.state.runner
     if runner is None:
         return {"status": "ok", "version": __version__, "runner": "disabled"}
+    token = request.app.state.settings.token
+    if token and not (auth.bearer_ok(request, token) or auth.session_ok(request, token)):
+        return {"status": "ok", "version": __version__, "runner": runner.state}
     return {"status": "ok", "version": __version__, "runner": runner.state,
             "runner_error": runner.error, "workers": runner.n_workers}
 
@@ -165,7 +170,9 @@ def build_router(settings: Settings, SweepRequest, auth) -> APIRouter:  # noqa: 
     # Each route: path, handler, method, then how it is documented (/docs, /openapi.json).
     add = router.add_api_route
     add("/health", health, methods=["GET"], response_model=schemas.Health, tags=["service"],
-        summary="Liveness of the API and state of the job runner (no token needed)")
+        response_model_exclude_unset=True,
+        summary="Liveness of the API and state of the job runner (no token needed; its error "
+                "and workers only with the token, when one is set)")
     add("/sweeps", make_submit(SweepRequest), methods=["POST"], status_code=202,
         response_model=schemas.Submitted, tags=["sweeps"], dependencies=deps,
         responses={**invalid, **unauthorized},

@@ -228,10 +228,8 @@ class Runner:
         if n:
             log.info("requeued %d job(s) left running by a previous server", n)
         # This process holds runner.lock: no other writer, every temporary file is stale.
-        folders = [self.settings.points_dir]
-        if self.settings.jobs_dir.is_dir():
-            folders += [d for d in self.settings.jobs_dir.iterdir() if d.is_dir()]
-        removed = [p for folder in folders for p in remove_stale_temp_files(folder)]
+        removed = [p for folder in self.settings.temporary_file_folders()
+                   for p in remove_stale_temp_files(folder)]
         if removed:
             log.info("removed %d temporary file(s) of writes that were killed", len(removed))
 

@@ -25,7 +25,7 @@ from airpuff_core.params import (
     choice_default_text,
 )
 from airpuff_core.result import METRICS
-from sweep.identification import DEFAULT_SIGMA, MEASURABLE, UNITS
+from sweep.identification import DEFAULT_SIGMA, MEASURABLE, SIGMA_RANGE, UNITS
 
 from .status import JOB_STATUSES, POINT_STATUSES, JobStatusName, PointStatusName
 
@@ -117,7 +117,9 @@ class JobInfo(BaseModel):
     points_total: int = Field(description="number of grid points")
     points_done: int = Field(description="points finished successfully (including reused ones)")
     points_failed: int = Field(description="points whose simulation failed")
-    points_reused: int = Field(description="successful points taken from earlier computations")
+    points_reused: int = Field(description="points whose result (ok, or failed by the model) "
+                                           "was taken from an earlier computation, not "
+                                           "computed for this job")
     created_at: str = Field(description="submission time, ISO 8601 UTC")
     started_at: Optional[str] = Field(description="time the runner started the job, ISO 8601 UTC")
     finished_at: Optional[str] = Field(description="time the job ended, ISO 8601 UTC")
@@ -167,8 +169,10 @@ class Health(BaseModel):
     version: str = Field(description="airpuff version")
     runner: str = Field(description="job runner: disabled, starting, connecting, ready, stopped "
                                     "or failed")
-    runner_error: Optional[str] = Field(default=None, description="why the runner failed")
-    workers: Optional[int] = Field(default=None, description="Dask workers connected")
+    runner_error: Optional[str] = Field(default=None, description="why the runner failed "
+                                        "(left out without the token, when one is set)")
+    workers: Optional[int] = Field(default=None, description="Dask workers connected (left "
+                                   "out without the token, when one is set)")
 
 
 class ValidationItem(BaseModel):
@@ -199,7 +203,8 @@ class MeasuredValue(BaseModel):
     value: Annotated[float, Strict(), Field(allow_inf_nan=False, ge=-1e6, le=1e6)] = Field(
         description="measured value in the metric's unit (" + ", ".join(
             f"{name} {UNITS[name]}" for name in MEASURABLE) + ")")
-    sigma: Optional[Annotated[float, Strict(), Field(allow_inf_nan=False, gt=0, le=1e6)]] = Field(
+    sigma: Optional[Annotated[float, Strict(), Field(allow_inf_nan=False, ge=SIGMA_RANGE[0],
+                                                     le=SIGMA_RANGE[1])]] = Field(
         default=None, description="1-sigma uncertainty in the same unit; default " + ", ".join(
             f"{DEFAULT_SIGMA[name]:g} {UNITS[name]} ({name})" for name in MEASURABLE))
 

@@ -21,6 +21,8 @@ class Settings:
     poll_interval: float = 0.25  # s, runner loop period
     retries: int = 2  # Dask retries of a point whose worker died
     max_body_bytes: int = 1_000_000
+    bind_address: str = "127.0.0.1"  # the address served: its Host names are accepted (api.hosts)
+    allowed_hosts: tuple[str, ...] = ()  # further Host names accepted (``*``: any)
 
     @classmethod
     def from_env(cls, data_dir, **kw) -> "Settings":
@@ -42,3 +44,16 @@ class Settings:
 
     def job_dataset(self, job_id: str) -> Path:
         return self.jobs_dir / job_id / "sweep.nc"
+
+    def temporary_file_folders(self) -> list[Path]:
+        """The folders that atomic writes of the service write into (``.<name>.<random>.tmp``
+        files, ``airpuff_core.atomic``): the points, the damaged points set aside, each job's
+        folder and its figures.  A server holding ``runner.lock`` clears them at start-up."""
+        from sweep.storage import DAMAGED_SUBDIR
+
+        folders = [self.points_dir, self.points_dir / DAMAGED_SUBDIR]
+        if self.jobs_dir.is_dir():
+            for job in self.jobs_dir.iterdir():
+                if job.is_dir():
+                    folders += [job, job / "figures"]
+        return folders

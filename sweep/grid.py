@@ -21,7 +21,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from airpuff_core.params import PARAMETERS, SWEPT, ParameterError, RunParams, parse_decimal
+from airpuff_core.params import (PARAMETERS, SWEPT, ParameterError, RunParams, parse_decimal,
+                                 parse_whole)
 
 # Grid values are rounded to this many significant digits, so that "0.1:0.3:3" gives exactly
 # [0.1, 0.2, 0.3] and not 0.30000000000000004: the values end up in netCDF coordinates, in
@@ -57,7 +58,7 @@ def _axis_parts(name: str, text: str) -> tuple[list[str], int | None]:
         if len(parts) != 3:
             raise ParameterError(name, text, AXIS_SYNTAX)
         try:
-            return parts[:2], int(parts[2])
+            return parts[:2], parse_whole(parts[2])
         except ValueError:
             raise ParameterError(name, text, "start:stop:num with num a whole number >= 1") from None
     return [t.strip() for t in text.split(",")], None

@@ -44,6 +44,10 @@ from airpuff_core.result import METRICS
 # here) with the default standard uncertainty (1 sigma) of a measurement, in the metric's unit.
 DEFAULT_SIGMA = {"P1": 0.5, "P2": 0.5, "DA": 0.02, "t_A1": 0.1, "t_A2": 0.1}
 MEASURABLE = tuple(DEFAULT_SIGMA)
+# The accepted range of a measurement's sigma, in the metric's unit.  Below the lower bound no
+# instrument resolves a difference, and chi^2 divides by sigma^2, which underflows to 0 (at
+# sigma ~ 1e-162) and would make every point of the sweep look infinitely far.
+SIGMA_RANGE = (1e-6, 1e6)
 # Units of the measured quantities and of the estimated and given parameters (user units).
 UNITS = {**{name: METRICS[name][0] for name in MEASURABLE},
          **{name: PARAMETERS[name].unit for name in ("IOP", "E0", "thickness", "pmax")}}
@@ -89,8 +93,9 @@ def make_measurement(values: Mapping[str, Any]) -> dict[str, tuple[float, float]
             raise IdentifyError(name, f"{name}: value and sigma must be numbers") from None
         if not math.isfinite(value):
             raise IdentifyError(name, f"{name}={value!r}: accepted a finite number [{UNITS[name]}]")
-        if not (math.isfinite(sigma) and sigma > 0):
-            raise IdentifyError(name, f"{name} sigma={sigma!r}: accepted a number > 0 [{UNITS[name]}]")
+        if not (math.isfinite(sigma) and SIGMA_RANGE[0] <= sigma <= SIGMA_RANGE[1]):
+            raise IdentifyError(name, f"{name} sigma={sigma!r}: accepted a number in "
+                                      f"[{SIGMA_RANGE[0]:g}, {SIGMA_RANGE[1]:g}] {UNITS[name]}")
         out[name] = (value, sigma)
     if not out:
         raise IdentifyError("measurement", "no measured quantity given; give at least one of "

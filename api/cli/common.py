@@ -12,7 +12,7 @@ import sys
 import time
 
 from airpuff_core.params import (CHOICE_DESCRIPTIONS, CHOICES, PARAMETERS, SWEPT, RunParams,
-                                 choice_default_text)
+                                 choice_default_text, parse_whole)
 
 # Options of `airpuff run` besides the four swept parameters (every other numeric parameter, so a
 # new one appears here by itself).  Flags are spelled with dashes.

@@ -12,6 +12,7 @@ import json
 import re
 import sys
 
+from airpuff_core.params import parse_decimal, parse_whole
 from sweep.identification import (DEFAULT_SIGMA, MEASURABLE, UNITS, IdentifyError, SweepTable,
                                   identify, refine)
 
@@ -23,8 +24,8 @@ def parse_measured(name: str, text: str) -> tuple[float, float]:
     try:
         if not m:
             raise ValueError
-        value = float(m.group(1))
-        sigma = float(m.group(2)) if m.group(2) is not None else DEFAULT_SIGMA[name]
+        value = parse_decimal(m.group(1))
+        sigma = parse_decimal(m.group(2)) if m.group(2) is not None else DEFAULT_SIGMA[name]
     except ValueError:
         raise IdentifyError(name, f"invalid --{name} {text!r}: accepted VALUE or VALUE+-SIGMA "
                                   f"in {UNITS[name]} (e.g. --{name} "
@@ -36,7 +37,7 @@ def _number(name: str, text):
     if text is None:
         return None
     try:
-        return float(text)
+        return parse_decimal(str(text))
     except ValueError:
         raise IdentifyError(name, f"invalid --{name} {text!r}: accepted a number "
                                   f"[{UNITS[name]}]") from None
@@ -84,7 +85,7 @@ def identify_command(args) -> int:
             raise IdentifyError("measurement", "no measured quantity given; give at least one of "
                                 + ", ".join("--" + n for n in MEASURABLE))
         try:
-            max_runs = int(args.refine_runs)
+            max_runs = parse_whole(str(args.refine_runs))
         except ValueError:
             max_runs = -1
         if not 4 <= max_runs <= 9:

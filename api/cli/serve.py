@@ -18,9 +18,10 @@ import socket
 import sys
 from pathlib import Path
 
+from api.hosts import ALLOWED_HOSTS_ENV, parse_allowed_hosts
 from api.settings import DEFAULT_MAX_POINTS, TOKEN_ENV, Settings
 
-from .common import fail
+from .common import fail, parse_whole
 
 PROG = "airpuff serve"
 
@@ -44,6 +45,14 @@ def add_serve_parser(sub) -> None:
                         "local workers; results come back through Dask, so its workers need "
                         "not see DIR (they need airpuff installed, one thread each and "
                         "NUMBA_NUM_THREADS=1)")
+    p.add_argument("--allowed-hosts", default=os.environ.get(ALLOWED_HOSTS_ENV, ""),
+                   metavar="NAMES",
+                   help="further names by which clients reach the server, comma separated (the "
+                        "Host header; default from $" + ALLOWED_HOSTS_ENV + "): localhost, "
+                        "127.0.0.1, ::1 and the --host address are always accepted, any IP "
+                        "address too when --host is 0.0.0.0 or ::; '*' accepts any name (behind "
+                        "a proxy that checks it). Others get 400: the defence against DNS "
+                        "rebinding")
     p.add_argument("--max-points", default=str(DEFAULT_MAX_POINTS), metavar="N",
                    help=f"largest grid a request may ask for (default {DEFAULT_MAX_POINTS})")
     p.add_argument("--no-runner", action="store_true",
@@ -57,7 +66,7 @@ def add_serve_parser(sub) -> None:
 
 def _int(name: str, text: str, lo: int, hi: int) -> int:
     try:
-        v = int(str(text).strip())
+        v = parse_whole(str(text))
     except ValueError:
         v = None
     if v is None or not lo <= v <= hi:
@@ -129,8 +138,14 @@ def serve_command(args: argparse.Namespace) -> int:
     except OSError as err:
         fail(PROG, ValueError(f"invalid --data-dir={args.data_dir!r}: accepted a writable "
                               f"folder ({err.strerror})"))
+    try:
+        allowed_hosts = parse_allowed_hosts(args.allowed_hosts)
+    except ValueError as err:
+        fail(PROG, ValueError(f"invalid --allowed-hosts: {err}; accepted: host names or IP "
+                              "addresses, comma separated, or '*'"))
     settings = Settings.from_env(data_dir.resolve(), max_points=max_points, workers=workers,
-                                 scheduler=scheduler, run_jobs=not args.no_runner)
+                                 scheduler=scheduler, run_jobs=not args.no_runner,
+                                 bind_address=args.host, allowed_hosts=allowed_hosts)
 
     logging.basicConfig(level=args.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -145,6 +160,14 @@ def serve_command(args: argparse.Namespace) -> int:
         except RunnerLocked as err:
             sys.stderr.write(f"{PROG}: error: {err}\n")
             return 1
+
+    from api import db
+
+    try:  # before uvicorn: a damaged or newer database stops the server with one line
+        db.init(settings.db_path)
+    except db.DatabaseUnusable as err:
+        sys.stderr.write(f"{PROG}: error: {err}\n")
+        return 1
 
     # Bind before anything starts, so a busy port is reported at once (and --port 0 works).
     try:

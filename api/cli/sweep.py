@@ -8,8 +8,9 @@ thickness mm, pmax kPa); an axis left out takes the parameter's default.  Every 
 computes only the points that are missing.
 
 Exit codes: 0 every point ok; 1 the sweep finished but some points failed (see the table and
-sweep.nc); 2 bad input (one line on stderr naming the parameter and accepted range);
-130 interrupted (finished points stay stored).
+sweep.nc); 2 bad input (one line on stderr naming the parameter and accepted range), or another
+`airpuff sweep` is writing into the same --out (it holds OUT/sweep.lock; this one refuses at once
+rather than wait behind a run of unknown length); 130 interrupted (finished points stay stored).
 """
 
 from __future__ import annotations
@@ -21,10 +22,12 @@ from airpuff_core.params import CHOICES, PARAMETERS, SWEPT, ParameterError
 from api.settings import DEFAULT_MAX_POINTS
 from sweep.grid import AXIS_SYNTAX
 
-from .common import RUN_OPTIONS, add_run_options, escape_percent, fail
+from .common import RUN_OPTIONS, add_run_options, escape_percent, fail, parse_whole
 
 PROG = "airpuff sweep"
 DEFAULT_OUT = "sweep_out"
+# Held in --out while a sweep runs: a second run into the same folder is refused (exit code 2).
+LOCK_FILE = "sweep.lock"
 
 
 def add_sweep_parser(sub) -> None:
@@ -77,7 +80,7 @@ def spec_from_args(args, max_points: int = DEFAULT_MAX_POINTS):
 
 def _whole(name: str, text, low: int = 1) -> int:
     try:
-        n = int(str(text))
+        n = parse_whole(str(text))
     except ValueError:
         raise ParameterError(name, text, f"a whole number >= {low}") from None
     if n < low:
@@ -87,6 +90,7 @@ def _whole(name: str, text, low: int = 1) -> int:
 
 def sweep_command(args) -> int:
     from sweep.combine import DamagedPointFiles
+    from sweep.folder_lock import FolderLocked, hold_folder_lock
     from sweep.report import SweepProgress, summary_table
     from sweep.runner import run_sweep
 
@@ -95,6 +99,15 @@ def sweep_command(args) -> int:
         workers = _whole("workers", args.workers)
     except ParameterError as err:
         fail(PROG, err)
+    try:
+        lock = hold_folder_lock(args.out, LOCK_FILE)
+    except FolderLocked as err:
+        fail(PROG, ValueError(f"another airpuff sweep is writing into --out {args.out} (it holds "
+                              f"{LOCK_FILE}{', pid ' + err.holder if err.holder else ''}): wait "
+                              "for it to end, or choose another --out"))
+    except OSError as err:
+        fail(PROG, ValueError(f"invalid --out {args.out!r}: accepted a writable folder "
+                              f"({err.strerror})"))
     progress = None if args.json else SweepProgress()
     stopped = None  # (exit code, message) if the sweep did not finish
     try:
@@ -107,6 +120,7 @@ def sweep_command(args) -> int:
         # e.g. no scheduler at --scheduler, unwritable --out, point files that stay unreadable
         stopped = (1, f"error: {' '.join(str(err).split())}")
     finally:
+        lock.close()
         if progress:
             progress.close()  # before any message: the bar's line ends first
     if stopped:

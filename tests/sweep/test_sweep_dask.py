@@ -92,7 +92,7 @@ def test_combined_file_is_self_describing(main_sweep):
             assert ds[name].attrs["units"] == unit and ds[name].attrs["long_name"]
         assert ds["E0"].attrs["units"] == "MPa" and ds["IOP"].attrs["units"] == "mmHg"
         assert ds["thickness"].attrs["units"] == "mm" and ds["pmax"].attrs["units"] == "kPa"
-        assert ds["time"].attrs["units"].startswith("ms since ")  # a CF time axis [ms]
+        assert ds["time"].attrs["units"].startswith("milliseconds since ")  # a CF time axis [ms]
         assert ds["apex_displacement"].attrs["units"] == "mm"
         assert ds["jet_pressure_apex"].attrs["units"] == "mmHg"
         # the run options: scalar coordinates with units, and attributes
