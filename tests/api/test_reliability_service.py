@@ -25,10 +25,9 @@ from api import auth
 from api.app import MAX_ERRORS
 from api.db import SCHEMA_VERSION
 from sweep.storage import DAMAGED_SUBDIR, point_path
-try:  # tests/ may or may not be a package
-    from .test_api_support import REPO, ServerProcess, post_at_once, submit, wait_job
-except ImportError:
-    from test_api_support import REPO, ServerProcess, post_at_once, submit, wait_job
+from tests.api.support import REPO, ServerProcess, post_at_once, submit, wait_job
+
+pytestmark = pytest.mark.service
 
 COARSE = {"resolution": "coarse", "t_end": 1.0}
 TOKEN = "tok-issue30"
@@ -136,6 +135,7 @@ def test_host_header_is_checked_and_pages_cannot_be_framed(open_server):
 
 # -- item 5: the model hash computed by racing threads ----------------------------------------------
 
+@pytest.mark.slow
 def test_simultaneous_posts_right_after_start_all_succeed(tmp_path):
     """Six POSTs at once to a server that has just started, three times: every one is a 202
     (computing the model version lazily in six threads at once raised SystemError: AST
@@ -245,6 +245,8 @@ def two_sweeps(tmp_path_factory):
     return out, (first.returncode, stdout, stderr), second
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_a_second_sweep_into_the_same_out_is_refused(two_sweeps):
     out, (code, stdout, stderr), second = two_sweeps
     assert code == 0, stderr
@@ -263,6 +265,7 @@ def plain_times(path) -> np.ndarray:
     return (t - t[0]).astype("timedelta64[ns]").astype(np.int64)
 
 
+@pytest.mark.cluster
 def test_plain_xarray_decodes_every_time_exactly(two_sweeps, tmp_path):
     """Histories every 1e-5 ms over 1 ms: the run file and sweep.nc decode into 100,001 distinct
     times, 10 ns apart exactly (they decoded into 1,001 distinct values)."""
@@ -304,10 +307,13 @@ def runner_server(tmp_path_factory):
         yield s
 
 
+@pytest.mark.cluster
 def test_stray_temporary_files_of_figures_and_damaged_points_are_removed(runner_server):
     assert not any(p.exists() for p in runner_server.stray), runner_server.stray
 
 
+@pytest.mark.cluster
+@pytest.mark.slow
 def test_history_of_a_damaged_point_is_set_aside_and_says_so(runner_server):
     with runner_server.client() as c:
         job = wait_job(c, submit(c, {"E0": [0.45], **COARSE}), timeout=300)
@@ -328,6 +334,7 @@ def test_history_of_a_damaged_point_is_set_aside_and_says_so(runner_server):
         assert r.status_code == 404 and "missing" in r.text, (r.status_code, r.text[-500:])
 
 
+@pytest.mark.cluster
 def test_points_reused_counts_a_reused_model_failure(runner_server):
     body = {"E0": [0.5], "thickness": [0.01], **COARSE}  # a 10 um cornea: the model fails
     with runner_server.client() as c:
@@ -337,6 +344,7 @@ def test_points_reused_counts_a_reused_model_failure(runner_server):
     assert (first["points_reused"], again["points_reused"]) == (0, 1), (first, again)
 
 
+@pytest.mark.cluster
 def test_health_without_the_token_tells_only_liveness(runner_server):
     with runner_server.client(token=None) as anon:
         health = anon.get("/health").json()
