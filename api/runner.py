@@ -39,10 +39,8 @@ makes its point pending again, to be computed anew.  Messages that reach clients
 
 from __future__ import annotations
 
-import fcntl
 import json
 import logging
-import os
 import threading
 import time
 import uuid
@@ -66,19 +64,13 @@ class RunnerLocked(RuntimeError):
 def acquire_runner_lock(data_dir: Path):
     """Hold ``DATA_DIR/runner.lock`` for the life of the process: one runner per data directory.
     Returns the open file (keep a reference); raises RunnerLocked if another process holds it."""
-    data_dir.mkdir(parents=True, exist_ok=True)
-    fh = open(data_dir / "runner.lock", "a+")
+    from sweep.folder_lock import FolderLocked, hold_folder_lock
+
     try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        fh.close()
+        return hold_folder_lock(data_dir, "runner.lock")
+    except FolderLocked:
         raise RunnerLocked(f"another airpuff server is running jobs on {data_dir} "
                            "(it holds runner.lock)") from None
-    fh.seek(0)
-    fh.truncate()
-    fh.write(f"{os.getpid()}\n")
-    fh.flush()
-    return fh
 
 
 class Runner:
