@@ -84,15 +84,16 @@ def sobol_indices(table: SweepTable, metrics: Sequence[str] | None = None, n_bas
 def format_indices(result: dict[str, Any]) -> str:
     """A plain-text table: one row per metric, S1 and ST of each parameter."""
     params = result["parameters"]
-    head = f"{'metric':<10}" + "".join(f"{'S1 ' + p:>13}{'ST ' + p:>13}" for p in params) \
+    w = max([10, *(len(n) + 1 for n in result["metrics"])])
+    head = f"{'metric':<{w}}" + "".join(f"{'S1 ' + p:>13}{'ST ' + p:>13}" for p in params) \
         + f"{'surrogate RMS':>16}{'/ std':>8}"
     lines = [result["method"], head]
     for name, m in result["metrics"].items():
         if "skipped" in m:
-            lines.append(f"{name:<10} skipped: {m['skipped']}")
+            lines.append(f"{name:<{w}} skipped: {m['skipped']}")
             continue
         s = m["surrogate"]
-        lines.append(f"{name:<10}" + "".join(f"{m['S1'][p]:>13.3f}{m['ST'][p]:>13.3f}"
+        lines.append(f"{name:<{w}}" + "".join(f"{m['S1'][p]:>13.3f}{m['ST'][p]:>13.3f}"
                                              for p in params)
                      + f"{s['held_out_rms']:>12.3g} {m['unit']:<4}{s['relative_held_out_rms']:>7.3f}")
     return "\n".join(lines)
