@@ -19,9 +19,11 @@ the density of the equation of state at pressure P.  The fluid's mean density is
 density of the globe's pressure: the wall gives way by the indentation volume MINUS what the fluid
 is compressed by, so the fluid's compressibility does not add to the globe's compliance, and
 the mean pressure does not depend on c.  (In an incompressible fluid the wall would take exactly
-dV_c.)  The wall's position is a function of the cornea's state, with no inertia and no damping of
-its own, so it adds no stiff mode and no coupling iteration; the fluid carries the acoustic and
-inertial deviations from the mean.
+dV_c.)  The wall's position is a function of the cornea's state, with no inertia, so it adds no
+stiff mode and no coupling iteration; the fluid carries the acoustic and inertial deviations from
+the mean.  On top of it the wall gives way under the fluid's acoustic pressure deviation
+(``CompliantWall.commit``): a wall that only followed the cornea would feed the chamber's
+acoustic mode.
 
 The walls recede along the axis.  Every wall node moves by w(x) d in -y, with w = 1 on the
 posterior sphere (x <= x_c = r_post sin alpha0) and falling linearly in x to 0 at the limbus x_l on
