@@ -152,6 +152,10 @@ def build_corrections_router(settings: Settings, auth) -> APIRouter:
         cid = uuid.uuid4().hex[:12]
         atomic_write(corrections_dir(settings, row["id"]) / f"{cid}.json",
                      lambda p: p.write_text(json.dumps(d, indent=1), encoding="utf-8"))
+        try:  # the job page shows the Sobol indices beside the formula
+            job_sensitivity(settings, con, row)
+        except CorrectionError:
+            pass  # a grid on which nothing varies: the page says so when asked
         response.status_code = 201
         response.headers["Location"] = f"/sweeps/{job_id}/corrections/{cid}"
         return _summary(cid, job_id, d)
@@ -266,7 +270,8 @@ def residual_figure(d: dict) -> bytes:
 
 def page_section(settings: Settings, con, row) -> str:
     """The job page's section: each correction's formulas, held-out errors and residual figure,
-    and the Sobol indices of every metric (computed once the job is done)."""
+    and the Sobol indices of every metric once computed (by ``GET /sweeps/{id}/sensitivity`` or
+    a correction's fit)."""
     if row["status"] != "done":
         return ""
     job_id = row["id"]
@@ -296,11 +301,14 @@ def page_section(settings: Settings, con, row) -> str:
             f'<th>formula</th></tr></thead><tbody>{rows}</tbody></table>'
             f'<div class="figures"><img alt="held-out residuals against each reading" '
             f'src="/jobs/{esc(job_id)}/corrections/{esc(cid)}/residuals.png"></div>')
-    try:
-        sens = job_sensitivity(settings, con, row)
-    except CorrectionError as err:
-        parts.append(f'<h2 id="sensitivity">Sensitivity</h2><p class="muted">{esc(str(err))}</p>')
+    path = settings.jobs_dir / job_id / "sensitivity.json"
+    if not path.is_file():  # computed on request only: a page view stays fast
+        parts.append(f'<h2 id="sensitivity">Sensitivity (Sobol indices)</h2><p class="muted">Not '
+                     f'computed yet: <a href="/sweeps/{esc(job_id)}/sensitivity">GET /sweeps/'
+                     f'{esc(job_id)}/sensitivity</a> computes them (a few seconds; fitting a '
+                     'correction does it too), and they then show here.</p>')
         return "".join(parts)
+    sens = json.loads(path.read_text(encoding="utf-8"))
     params = sens["parameters"]
     head = "".join(f"<th>S1 {esc(p)}</th><th>ST {esc(p)}</th>" for p in params)
     body = []
