@@ -33,68 +33,88 @@ UJ = 1e-6  # J per microjoule
 
 
 class EnergyBudget:
-    """Cumulative budget of one run; ``account_step`` after the coupling of every step (with the
-    state at t^n still in the model and the trial state at t^{n+1} passed in), ``terms`` for the
-    histories."""
+    """Cumulative budget of one run, an observer of its steps (``CoupledModel.step``):
+    ``coupled`` adds the work terms of a step once it is coupled (the state at t^n still the
+    model's, the one at t^{n+1} in its trial arrays), ``terms`` gives the histories' values."""
 
-    def __init__(self, cornea, viscoelastic, mass, rho0, p0, gamma):
-        self.cornea = cornea  # cornea mechanics: kinetic_energy(VX, VY), energy(X, Y)
-        self.viscoelastic = viscoelastic  # its ViscoelasticHistory, or None
-        self.mass = mass
-        self.rho0, self.p0, self.gamma = rho0, p0, gamma
-        self._loads = None
+    def __init__(self, model):
+        """The budget of ``model`` (a ``CoupledModel``) from its state at rest."""
+        si = model.si
+        self.cornea = model.cornea  # energy(X, Y), kinetic_energy(VX, VY)
+        self.tissue = model.tissue  # stored_energy, overstress_work
+        self.mass = model.fluid.mass
+        self.rho0, self.p0, self.gamma, self.mu = si.rho_fluid, si.p0_Pa, si.tait_gamma, si.mu
         self.jet_work = 0.0
         self.overstress_work = 0.0
         self.fluid_viscous = 0.0
         self.fluid_hyperviscous = 0.0
         self.globe_work = 0.0
         self.sound_speed_work = 0.0
-        self._reference = None
-
-    def _stored(self, X, Y, VX, VY, vx, vy, rho, c, history):
-        cornea = self.cornea
-        membrane, bending = cornea.energy(X, Y)  # bending includes the transverse shear
-        kinetic = cornea.kinetic_energy(VX, VY) + kinetic_energy(self.mass, vx, vy)
-        elastic = membrane + bending + compression_energy(self.mass, rho, self.rho0, self.p0, c,
-                                                          self.gamma)
-        ve = self.viscoelastic
-        ve_stored = ve.stored_energy(history) if ve is not None else 0.0
-        return kinetic, elastic, ve_stored
-
-    def start(self, X, Y, VX, VY, vx, vy, rho, c, history):
-        """The reference state at t = 0."""
-        self._reference = self._stored(X, Y, VX, VY, vx, vy, rho, c, history)
-        n = X.shape[0]
+        n = model.X.shape[0]
         self._loads = tuple(np.empty(n) for _ in range(4))
+        # the jet on the cornea at t^n and t^{n+1} [Pa]; the jet at t^{n+1} of one step is the
+        # next step's at t^n (at time _jet_time [s])
+        self._jet_new, self._jet_n = np.empty(n), np.empty(n)
+        self._jet_time = np.nan
+        self._p_n = np.empty(model.fluid.rho.shape[0])  # fluid pressure at t^n [Pa]
+        self._c_last = model.c
+        self._reference = self._stored(model)
 
-    def account_step(self, dt, jet_n, jet_new, X0, Y0, X1, Y1, history0, history1, kind, x,
-                     vx0, vy0, vx1, vy1, dv0, rho_n, mu, hv_vx, hv_vy, hv_rho, p_n, c_old, c_new,
-                     globe_work):
-        """Add the work terms of one step of dt [s]: the jet's net pressures jet_n, jet_new on
-        the cornea nodes at t^n and t^{n+1} [Pa], the cornea's positions X0 .. Y1 [m] and
-        viscoelastic overstresses at both ends (ignored without viscoelasticity), the fluid's velocities at both ends, the velocity
-        derivatives dv0 and density rho_n at t^n, the hyperviscous rates, the pressure p_n at t^n
-        [Pa], the sound speeds of the last and this step [m/s], and the work on the walls [J].
-        """
+    def _stored(self, model):
+        """(kinetic, elastic, viscoelastic) energy [J] of the model's state."""
+        fluid, c = model.fluid, model.c
+        membrane, bending = self.cornea.energy(model.X, model.Y)  # bending with transverse shear
+        kinetic = (self.cornea.kinetic_energy(model.VX, model.VY)
+                   + kinetic_energy(self.mass, fluid.vx, fluid.vy))
+        elastic = membrane + bending + compression_energy(self.mass, fluid.rho, self.rho0, self.p0,
+                                                          c, self.gamma)
+        return kinetic, elastic, self.tissue.stored_energy(self.tissue.overstress)
+
+    def coupled(self, model, dt):
+        """Add the work terms of the step of dt [s] just coupled: the jet's on the cornea
+        (trapezoidal in its net pressures at both ends), the tissue's overstresses', the fluid's
+        viscous and hyperviscous dissipation at t^n, the work on the globe's walls, and the
+        energy a change of the sound speed puts into the compression."""
+        fluid, c, t = model.fluid, model.c, model.t
+        w = fluid.work
+        X0, Y0 = model.X, model.Y
+        X1, Y1 = model.trial_cornea[0], model.trial_cornea[1]
+        phi = model.chamber.phi_cornea
+        if self._jet_time != t:
+            model.jet.pressures(t, phi, self._jet_n)
+        else:
+            self._jet_n, self._jet_new = self._jet_new, self._jet_n
+        model.jet.pressures(t + dt, phi, self._jet_new)
+        self._jet_time = t + dt
+        p_n = self._p_n
+        fluid.pressure(c, p_n)
         # the jet presses from outside: its loads are those of the net inside pressure -p_jet
-        self.jet_work -= pressure_load_work(X0, Y0, X1, Y1, jet_n, jet_new, *self._loads)
-        if self.viscoelastic is not None:
-            self.overstress_work += self.viscoelastic.overstress_work(X0, Y0, X1, Y1, history0,
-                                                                     history1)
-        visc, hyper = fluid_dissipation_power(kind, x, vx0, vy0, vx1, vy1, dv0[0], dv0[1], rho_n,
-                                              mu, hv_vx, hv_vy, self.mass, p_n, hv_rho)
+        self.jet_work -= pressure_load_work(X0, Y0, X1, Y1, self._jet_n, self._jet_new,
+                                            *self._loads)
+        tissue = self.tissue
+        self.overstress_work += tissue.overstress_work(X0, Y0, X1, Y1, tissue.overstress,
+                                                       tissue.trial_overstress)
+        visc, hyper = fluid_dissipation_power(fluid.kind, fluid.x, fluid.vx, fluid.vy,
+                                              w["vx_new"], w["vy_new"], fluid.dv[0], fluid.dv[1],
+                                              fluid.rho, self.mu, w["hv_vx"], w["hv_vy"],
+                                              self.mass, p_n, w["hv_rho"])
         self.fluid_viscous += visc * dt
         self.fluid_hyperviscous += hyper * dt
-        self.globe_work += globe_work
-        if c_new != c_old:
+        self.globe_work += model.globe.work(fluid.rho, w["rho_new"], c)
+        if c != self._c_last:
             self.sound_speed_work += (
-                compression_energy(self.mass, rho_n, self.rho0, self.p0, c_new, self.gamma)
-                - compression_energy(self.mass, rho_n, self.rho0, self.p0, c_old, self.gamma))
+                compression_energy(self.mass, fluid.rho, self.rho0, self.p0, c, self.gamma)
+                - compression_energy(self.mass, fluid.rho, self.rho0, self.p0, self._c_last,
+                                     self.gamma))
+        self._c_last = c
 
-    def terms(self, X, Y, VX, VY, vx, vy, rho, c, history):
-        """The budget's terms at the current state [uJ] (histories of the same names,
+    def committed(self, model, dt):
+        """Nothing to add once the step is accepted."""
+
+    def terms(self, model):
+        """The budget's terms at the model's current state [uJ] (histories of the same names,
         ``result.HISTORIES``)."""
-        kinetic, elastic, ve_stored = self._stored(X, Y, VX, VY, vx, vy, rho, c, history)
+        kinetic, elastic, ve_stored = self._stored(model)
         k0, e0, v0 = self._reference
         d_kinetic = kinetic - k0
         d_elastic = elastic - e0 + ve_stored - v0

@@ -1,4 +1,18 @@
-"""Errors raised by the solver."""
+"""Errors raised by the solver and by the validation of its parameters."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class ParameterError(ValueError):
+    """An invalid run parameter.  ``str(err)`` is one line naming the parameter and its range."""
+
+    def __init__(self, name: str, value: Any, accepted: str):
+        self.name = name
+        self.value = value
+        self.accepted = accepted
+        super().__init__(f"invalid {name}={value!r}: accepted {accepted}")
 
 
 class SimulationError(RuntimeError):

@@ -22,6 +22,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .cornea.registry import CORNEA_CHOICES, CORNEA_OPTIONS, CORNEAS, model_name, resolve_options
+from .errors import ParameterError
+
 MMHG_PA = 133.322  # Pa per mmHg
 UL_M3 = 1e-9  # m^3 per microlitre
 
@@ -69,16 +72,6 @@ MODEL_PRESETS: dict[str, dict[str, Any]] = {
 # the numeric parameters a preset sets: None (not given) until ``RunParams.validate``
 PRESET_PARAMETERS = tuple(name for name in MODEL_PRESETS["clinical"]
                           if not isinstance(MODEL_PRESETS["clinical"][name], str))
-
-
-class ParameterError(ValueError):
-    """An invalid run parameter.  ``str(err)`` is one line naming the parameter and its range."""
-
-    def __init__(self, name: str, value: Any, accepted: str):
-        self.name = name
-        self.value = value
-        self.accepted = accepted
-        super().__init__(f"invalid {name}={value!r}: accepted {accepted}")
 
 
 @dataclass(frozen=True)
@@ -191,9 +184,9 @@ PARAMETERS: dict[str, ParamSpec] = {
            "relaxation time of the cornea's viscoelasticity; set by the model preset (10: Kling "
            "et al. 2014)", si=("ve_tau_s", 1e-3)),
         _p("transverse_shear_modulus", "kPa", 0.0, 0.0, 1.0e5,
-           "transverse (out-of-plane) shear modulus G_t of the shell cornea (cornea=shell): "
-           "G_t > 0 makes the shell shear-deformable (Reissner-Mindlin, shear stiffness "
-           "5/6 G_t h), 0 keeps it rigid in shear (Kirchhoff-Love); set by the model preset "
+           "transverse (out-of-plane) shear modulus G_t of the shear-deformable shell (cornea="
+           "mindlin, shear stiffness 5/6 G_t h; above 0 there, 0 with the other corneas; "
+           "cornea=shell picks mindlin for G_t > 0, kirchhoff for 0); set by the model preset "
            "(paper 0, clinical 9.48: human stroma, Petsche et al. 2012)", low_inc=True,
            si=("transverse_shear_modulus_Pa", 1e3)),
         _p("ocular_rigidity", "1/uL", 0.0126, 0.0, 0.1,
@@ -212,7 +205,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "globe": ("rigid", "compliant"),
     "hyperviscosity_operator": ("brookshaw", "consistent", "consistent_velocity"),
     "model": tuple(MODEL_PRESETS),
-    "cornea": ("membrane", "shell"),
+    "cornea": CORNEA_CHOICES,
     "limbus": ("clamped", "pinned"),
 }
 # None: taken from the ``model`` preset (MODEL_PRESETS) unless given
@@ -243,11 +236,11 @@ CHOICE_DESCRIPTIONS = {
     "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shear-deformable "
              "shell cornea, G_t 9.48 kPa; compliant globe; viscoelastic: ve_g 0.3, ve_tau 10 ms); "
              "explicit options override it",
-    "cornea": "membrane (the paper's Fung membrane) or shell (the membrane with bending rigidity "
-              "D = E0 h^3/(12 (1 - nu^2)), large rotations; Kirchhoff-Love, or shear-deformable "
-              "with transverse_shear_modulus > 0)",
-    "limbus": "support of the shell at the limbus: clamped (rotation fixed) or pinned (free to "
-              "rotate)",
+    "cornea": "; ".join(f"{e.name}: {e.description}" for e in CORNEAS.values())
+              + "; shell (the older spelling): mindlin with transverse_shear_modulus > 0, "
+                "kirchhoff with 0 (the clinical preset's shell)",
+    "limbus": "support of the shell at the limbus (cornea kirchhoff or mindlin): clamped (rotation "
+              "fixed) or pinned (free to rotate)",
 }
 
 
@@ -287,17 +280,12 @@ def softest_E0(IOP, thickness, R, nu, fung_k):
     return math.exp(log_E0_MPa) if log_E0_MPa < 700.0 else math.inf
 
 
-def _jet(self) -> np.ndarray:
-    """(pmax [Pa], a, b, T [s], t0 [s]): the arguments of the air-jet kernel, eq. (11)."""
-    return np.array([self.pmax_Pa, self.a, self.b, self.T_s, self.t0_s])
-
-
 # The numeric run parameters in SI units (m, s, kg, Pa, rad), as the solver uses them: one float
 # field per entry of ``PARAMETERS``, named by its ``to_si`` (``E0_Pa``, where ``RunParams.E0`` is
 # in MPa; a parameter in SI keeps its name).  Made by ``RunParams.si()`` once per run.
 SIParams = dataclasses.make_dataclass(
     "SIParams", [(spec.to_si.name, float) for spec in PARAMETERS.values()], frozen=True,
-    namespace={"__module__": __name__, "jet": _jet,
+    namespace={"__module__": __name__,
                "__doc__": "The numeric run parameters in SI units (``PARAMETERS``' to_si)."})
 
 
@@ -325,15 +313,24 @@ class _RunParamsMethods:
         if "model" in changes:
             for name in MODEL_PRESETS.get(changes["model"], {}):
                 changes.setdefault(name, None)
+        elif "cornea" in changes:
+            # an option at its preset's value goes back to the preset, which drops it for a
+            # cornea that does not use it
+            preset = MODEL_PRESETS[self.model]
+            for name in CORNEA_OPTIONS:
+                if name in preset and getattr(self, name) == preset[name]:
+                    changes.setdefault(name, None)
         return dataclasses.replace(self, **changes)
 
     # -- validation -------------------------------------------------------------------------
     def validate(self) -> None:
         if self.model not in MODEL_PRESETS:  # before the preset fills its options
             raise ParameterError("model", self.model, "one of " + ", ".join(MODEL_PRESETS))
+        from_preset = set()
         for name, value in MODEL_PRESETS[self.model].items():
             if getattr(self, name) is None:
                 object.__setattr__(self, name, value)
+                from_preset.add(name)
         for name, spec in PARAMETERS.items():
             object.__setattr__(self, name, spec.check(getattr(self, name)))
         for name, allowed in CHOICES.items():
@@ -349,7 +346,22 @@ class _RunParamsMethods:
             if isinstance(v, bool) or iv != v or not (lo <= iv <= hi):
                 raise ParameterError(name, v, f"an integer in [{lo}, {hi}]")
             object.__setattr__(self, name, iv)
+        self._resolve_cornea(from_preset)
         self._check_combinations()
+
+    def _resolve_cornea(self, from_preset) -> None:
+        """``cornea`` by its registry name (``shell`` mapped by the transverse shear modulus) and
+        the cornea-specific options it does not use refused or, from a preset, dropped
+        (``cornea.registry.resolve_options``)."""
+        cornea = model_name(self.cornea, self.transverse_shear_modulus)
+        object.__setattr__(self, "cornea", cornea)
+        options = resolve_options(
+            cornea, {name: getattr(self, name) for name in CORNEA_OPTIONS}, from_preset,
+            # the range of a numeric option for the models that use it: above its neutral 0
+            {name: dataclasses.replace(PARAMETERS[name], low_inclusive=False).accepted()
+             for name in CORNEA_OPTIONS if name in PARAMETERS})
+        for name, value in options.items():
+            object.__setattr__(self, name, value)
 
     def _check_combinations(self) -> None:
         """Values each in range that do not go together (docs/model.md section 1)."""

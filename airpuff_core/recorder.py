@@ -21,40 +21,42 @@ import math
 
 import numpy as np
 
+from .apex_budget import apex_budget
 from .coupling import CoupledModel
+from .energy import EnergyBudget
 from .fluid import KAPPA
-from .kernels.membrane import air_jet
 from .metrics import compute_metrics
 from .params import MMHG_PA
 from .result import HISTORIES, SNAPSHOT_LABELS, RunResult
 from .threads import current_threads
 
 
-def probe(model: CoupledModel, full: bool = True) -> dict[str, float]:
+def probe(model: CoupledModel, budget: EnergyBudget, full: bool = True) -> dict[str, float]:
     """The scalars of the time histories at the model's current state (user units), except the
     air jet (analytic, eq. (11) on the output grid); ``full=False`` leaves out the costlier ones
-    (the bending moment and the energy budget's terms), which only output times need."""
+    (the bending moment and the terms of the energy ``budget``), which only output times
+    need."""
     values = {
         "apex_displacement": model.apex_displacement() * 1e3,
         "apex_velocity": -model.VY[0],
         "apex_curvature": model.apex_curvature() * 1e-3,
         "fluid_pressure_apex": model.p_interface[0] / MMHG_PA,
         "chamber_volume": model.chamber_volume() * 1e9,
-        "wall_volume_change": model.wall_volume_change() * 1e9,
-        "globe_pressure": model.globe_pressure() / MMHG_PA,
-        "wall_pressure": model.wall_pressure() / MMHG_PA,
-        "coupling_iterations": float(model.last_iterations),
+        "wall_volume_change": model.globe.volume_change() * 1e9,
+        "globe_pressure": model.globe.pressure() / MMHG_PA,
+        "wall_pressure": model.globe.wall_pressure(model.rho, model.c) / MMHG_PA,
+        "coupling_iterations": float(model.coupling.iterations),
         "sound_speed": model.c,
     }
     if full:
         values["apex_bending_moment"] = model.apex_moment() * 1e3
-        values.update(model.energy_terms())
+        values.update(budget.terms(model))
     return values
 
 
 def apex_budget_mmhg(model: CoupledModel) -> tuple[float, ...]:
-    """The apex force budget of the current state (``CoupledModel.apex_budget``) [mmHg]."""
-    return tuple(part / MMHG_PA for part in model.apex_budget())
+    """The apex force budget of the current state (``apex_budget.apex_budget``) [mmHg]."""
+    return tuple(part / MMHG_PA for part in apex_budget(model))
 
 
 def snapshot(model: CoupledModel) -> dict[str, np.ndarray]:
@@ -68,17 +70,18 @@ def snapshot(model: CoupledModel) -> dict[str, np.ndarray]:
 
 
 class Recorder:
-    """Histories, snapshots and diagnostics of one run; ``record_step`` after each step,
-    ``result`` at the end."""
+    """Histories, snapshots and diagnostics of one run, an observer of its steps: ``committed``
+    (``record_step``) after each step, ``result`` at the end; the energy terms from ``budget``."""
 
-    def __init__(self, model: CoupledModel):
+    def __init__(self, model: CoupledModel, budget: EnergyBudget):
         si = model.si
+        self.budget = budget
         self.t_end = si.t_end_s
-        self.t_jet_peak = si.t0_s
+        self.t_jet_peak = model.jet.peak_time  # s
         dt_out = si.output_interval_s
         n_out = int(math.floor(self.t_end / dt_out + 1e-9)) + 1
         self.out_t = np.arange(n_out) * dt_out  # s
-        first = probe(model)
+        first = probe(model, budget)
         self.histories = {k: np.full(n_out, np.nan) for k in HISTORIES}
         for k, v in first.items():
             self.histories[k][0] = v
@@ -107,19 +110,27 @@ class Recorder:
         self.snapshots[label] = snapshot(model)
         self.snapshot_t[label] = model.t * 1e3
 
+    def coupled(self, model: CoupledModel, dt: float):
+        """Nothing to keep before the commit."""
+
+    def committed(self, model: CoupledModel, dt: float):
+        """Take in the state after a step of dt [s]."""
+        self.record_step(model, dt)
+
     def record_step(self, model: CoupledModel, dt: float):
         """Take in the state after a step of dt [s]."""
-        self.iterations.append(model.last_iterations)
+        self.iterations.append(model.coupling.iterations)
         self.dts.append(dt)
         self.substeps.append(model.last_substeps)
-        self.hv_substeps.append(model.last_hv_substeps)
-        self.viscous_limited_steps += model.dt_limits["viscous"] < model.dt_limits["acoustic"]
-        self.max_residual = max(self.max_residual, model.last_residual)
+        self.hv_substeps.append(model.fluid.last_hv_substeps)
+        limits = model.control.dt_limits
+        self.viscous_limited_steps += limits["viscous"] < limits["acoustic"]
+        self.max_residual = max(self.max_residual, model.coupling.residual)
         t = model.t
         # the full probe only where an output time may fall before the next step ends: the
         # interpolation needs it on both sides of an output time
         next_out = self.out_t[min(self._next_out, self.out_t.shape[0] - 1)]
-        cur = probe(model, full=next_out <= t + model.max_step() + 1e-15)
+        cur = probe(model, self.budget, full=next_out <= t + model.control.max_step() + 1e-15)
         self.step_t.append(t * 1e3)
         self.step_kappa.append(cur["apex_curvature"])
         self.step_fluid_p.append(cur["fluid_pressure_apex"])
@@ -163,12 +174,12 @@ class Recorder:
         self._take("end", model)
         hist = self.histories
         # the jet is analytic: store eq. (11) exactly on the output grid, not interpolated
-        hist["jet_pressure_apex"] = (np.array([air_jet(t, 0.0, *model.jet) for t in self.out_t])
+        hist["jet_pressure_apex"] = (np.array([model.jet.at_apex(t) for t in self.out_t])
                                      / MMHG_PA)
         metrics, notes, extra = compute_metrics(
             self.out_t * 1e3, hist, np.array(self.step_t), np.array(self.step_kappa),
             np.array(self.step_fluid_p),
-            lambda t_ms: air_jet(t_ms * 1e-3, 0.0, *model.jet) / MMHG_PA, self.t_jet_peak * 1e3,
+            lambda t_ms: model.jet.at_apex(t_ms * 1e-3) / MMHG_PA, self.t_jet_peak * 1e3,
             np.array(self.step_budget))
         diagnostics = self._diagnostics(model, wall_s)
         diagnostics.update(extra)
@@ -188,6 +199,7 @@ class Recorder:
         return arrays
 
     def _diagnostics(self, model, wall_s):
+        """The recorder's step statistics and what the model reports of its parts."""
         dts = np.array(self.dts) if self.dts else np.array([0.0])
         iters = self.iterations
         return {
@@ -195,8 +207,6 @@ class Recorder:
             "dt_mean_us": float(dts.mean() * 1e6),
             "dt_min_us": float(dts.min() * 1e6),
             "dt_max_us": float(dts.max() * 1e6),
-            "n_fluid": int(model.chamber.n),
-            "n_cornea": int(model.X.shape[0]),
             "mean_coupling_iterations": float(np.mean(iters)) if iters else 0.0,
             "max_coupling_iterations": int(np.max(iters)) if iters else 0,
             "max_coupling_residual": float(self.max_residual),
@@ -205,18 +215,8 @@ class Recorder:
                                            else 0.0),
             "wall_s": wall_s,
             "threads": current_threads(),  # of the kernels; the result does not depend on it
-            "prestretch": model.cornea_model.lambda0,
-            "bending_rigidity_N_m": model.cornea_model.D,
-            "R_ref_mm": model.cornea_model.R_ref * 1e3,
-            "rest_shape_deviation_mm": model.rest_shape_deviation * 1e3,
-            "equilibrium_residual": model.equilibrium_residual,
-            "max_moment_condition": model.max_cond,
-            "hyperviscous_radius_per_gamma_c": model.hv_radius_max,
             "max_volume_mismatch": self.max_volume_mismatch,
-            "mass_kg": float(model.mass.sum()),
             "kappa_support": KAPPA,
-            "neighbour_searches": model.neighbours.searches,
-            "apex_fit_nodes": model.n_apex_fit,
-            "acoustic_cfl": model.si.cfl,
             "viscous_limited_steps": int(self.viscous_limited_steps),
+            **model.diagnostics(),
         }

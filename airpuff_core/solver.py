@@ -1,9 +1,11 @@
-"""One run: the coupled model stepped from t = 0 to t_end, watched by the recorder.
+"""One run: the coupled model stepped from t = 0 to t_end, watched by its observers.
 
 ``simulate`` is the whole algorithm of a run at the top level: build the ``CoupledModel``
-(chamber, cornea at rest under IOP, operators; ``coupling.py``), advance it step by step to
-t_end (each step: fluid predictor, Dirichlet-Neumann coupling, commit), and let the ``Recorder``
-(``recorder.py``) keep the histories, snapshots and diagnostics from which the result and its
+(chamber, cornea at rest under IOP, globe, operators; ``coupling.py``), advance it step by step
+to t_end (each step: step control, fluid predictor, Dirichlet-Neumann coupling, commit), and let
+the observers see every step: the ``EnergyBudget`` (``energy.py``) adds each step's work, the
+``BlowUpCheck`` (``blowup.py``) stops a run gone unphysical, and the ``Recorder``
+(``recorder.py``) keeps the histories, snapshots and diagnostics from which the result and its
 metrics are made.
 """
 
@@ -11,7 +13,9 @@ from __future__ import annotations
 
 import time as _time
 
+from .blowup import BlowUpCheck
 from .coupling import CoupledModel
+from .energy import EnergyBudget
 from .params import RunParams
 from .recorder import Recorder
 from .result import RunResult
@@ -36,14 +40,15 @@ def simulate(params: RunParams, progress=None, reuse: bool = True, threads=None)
 def _simulate(params, progress, reuse):
     wall0 = _time.monotonic()
     model = CoupledModel(params, reuse)
-    recorder = Recorder(model)
+    budget = EnergyBudget(model)
+    recorder = Recorder(model, budget)
+    observers = (budget, BlowUpCheck(), recorder)
     t_end = model.si.t_end_s
     last_progress = _time.monotonic()
     if progress:
         progress(0.0, t_end * 1e3)
     while model.t < t_end - 1e-15:
-        dt = model.step(t_stop=t_end)
-        recorder.record_step(model, dt)
+        model.step(t_stop=t_end, observers=observers)
         if progress and _time.monotonic() - last_progress > PROGRESS_INTERVAL:
             progress(model.t * 1e3, t_end * 1e3)
             last_progress = _time.monotonic()

@@ -35,7 +35,7 @@ class StabilityReport:
 
 
 def _dofs(model: CoupledModel):
-    kind = model.kind
+    kind = model.fluid.kind
     moving = np.flatnonzero(kind == INTERIOR)
     moving_y = np.flatnonzero((kind == INTERIOR) | (kind == AXIS))
     ncor = model.X.shape[0]
@@ -56,7 +56,7 @@ def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, ep
                             max_coupling_iterations=200)
     model = CoupledModel(params)
     if dt is None:
-        dt = model.time_step()
+        dt = model.control.time_step()
     dofs = _dofs(model)
     base = {name: getattr(model, name).copy() for name in ("x", "y", "vx", "vy", "rho", "X", "Y",
                                                           "VX", "VY")}
@@ -105,7 +105,7 @@ def viscous_operator(params: RunParams, component: str) -> tuple[np.ndarray, flo
     the matrix and the smallest node spacing h_min [m].
     """
     model = CoupledModel(params)
-    kind = model.kind
+    kind = model.fluid.kind
     if component == "vx":
         nodes, parity = np.flatnonzero(kind == INTERIOR), -1.0
     elif component == "vy":
@@ -123,14 +123,14 @@ def viscous_operator(params: RunParams, component: str) -> tuple[np.ndarray, flo
         fields = np.zeros((cols.size, n))
         fields[np.arange(cols.size), cols] = 1.0
         out = np.zeros((cols.size, n, 5))
-        model.ops_n.derivatives(x, model.y, fields, np.full(cols.size, parity), out)
+        model.fluid.ops_n.derivatives(x, model.y, fields, np.full(cols.size, parity), out)
         d = out[:, nodes, :]  # (column, row node, derivative)
         lap = d[..., 2] + d[..., 4] + d[..., 0] / xi
         lap = np.where(on_axis, 2.0 * d[..., 2] + d[..., 4], lap)
         if component == "vx":
             lap -= fields[:, nodes] / xi ** 2
         M[:, c0:c0 + cols.size] = lap.T
-    return M, model.h_min
+    return M, model.fluid.h_min
 
 
 def forward_euler_viscous_limit(M: np.ndarray, h_min: float) -> tuple[float, int]:

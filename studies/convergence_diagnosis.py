@@ -32,8 +32,10 @@ import numpy as np
 
 from airpuff_core import RunParams
 from airpuff_core.coupling import CoupledModel
-from airpuff_core.kernels.membrane import air_jet, even_fit_curvature
+from airpuff_core.kernels.membrane import even_fit_curvature
 from airpuff_core.params import MMHG_PA
+from airpuff_core.blowup import BlowUpCheck
+from airpuff_core.energy import EnergyBudget
 from airpuff_core.recorder import Recorder
 
 APEX_REGION_MM = 1.2  # cornea nodes recorded: reference x up to this
@@ -78,7 +80,9 @@ def crossing_down(t, f):
 
 def run(params: RunParams):
     model = CoupledModel(params)
-    recorder = Recorder(model)
+    budget = EnergyBudget(model)
+    recorder = Recorder(model, budget)
+    observers = (budget, BlowUpCheck(), recorder)
     X_ref = model.X.copy()
     n_region = int(np.searchsorted(X_ref, APEX_REGION_MM * 1e-3, side="right"))
     steps_t, steps_X, steps_Y, steps_p, steps_c, steps_vmax_node = [0.0], [], [], [], [], []
@@ -90,8 +94,7 @@ def run(params: RunParams):
     t_end = model.si.t_end_s
     wall0 = time.monotonic()
     while model.t < t_end - 1e-15:
-        dt = model.step(t_stop=t_end)
-        recorder.record_step(model, dt)
+        model.step(t_stop=t_end, observers=observers)
         steps_t.append(model.t * 1e3)
         steps_X.append(model.X[:n_region].copy())
         steps_Y.append(model.Y[:n_region].copy())
@@ -111,8 +114,7 @@ def analyse(model, result, series):
     t = series["t_ms"]
     X, Y = series["X"], series["Y"]
     X_ref = series["X_ref"]
-    jet = model.jet
-    p_jet = lambda t_ms: air_jet(t_ms * 1e-3, 0.0, *jet) / MMHG_PA  # noqa: E731
+    p_jet = lambda t_ms: model.jet.at_apex(t_ms * 1e-3) / MMHG_PA  # noqa: E731
     measures = {"fit": lambda x, y: even_fit_curvature(x, y, model.n_apex_fit),
                 "pair": lambda x, y: 2.0 * (y[0] - y[1]) / (x[1] ** 2)}
     for R in (0.3, 0.6, 1.0):

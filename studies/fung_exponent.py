@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 
 from airpuff_core import RunParams
-from airpuff_core.membrane import prestretch
+from airpuff_core.cornea.reference import prestretch
 from airpuff_core.params import MMHG_PA
 
 SLOPE_ORSSENGO_PYE = 0.0229  # MPa per mmHg

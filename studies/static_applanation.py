@@ -18,10 +18,11 @@ import argparse
 import numpy as np
 
 from airpuff_core import RunParams
+from airpuff_core.cornea.apex import apex_curvature, apex_fit_nodes
+from airpuff_core.cornea.build import cornea_for_run
+from airpuff_core.cornea.reference import static_equilibrium
 from airpuff_core.geometry import build_chamber
-from airpuff_core.membrane import apex_curvature, apex_fit_nodes, static_equilibrium
 from airpuff_core.params import MMHG_PA
-from airpuff_core.shell import shell_for_run
 
 STEP_MMHG = 5.0  # continuation step of the jet amplitude
 
@@ -32,7 +33,7 @@ def applanating_amplitude(params: RunParams, bisections: int = 30) -> tuple[floa
     ch = build_chamber(params.geometry, params.layout, params.resolution, si.R_m, si.r_post_m,
                        si.alpha0_rad)
     phi = ch.phi_cornea
-    model = shell_for_run(params, phi)
+    model = cornea_for_run(params, phi)
     X0, Y0 = si.R_m * np.sin(phi), si.R_m * np.cos(phi)
     X, Y, _ = static_equilibrium(model, X0, Y0, np.full(phi.shape, si.p0_Pa))
     apex_rest = Y[0]
@@ -77,8 +78,8 @@ def main(argv=None):
     for h in (float(v) for v in args.thickness.split(",")):
         base = RunParams(resolution=args.resolution, thickness=h)
         membrane, _ = applanating_amplitude(base.replace(cornea="membrane"))
-        kirchhoff, _ = applanating_amplitude(base.replace(cornea="shell"))
-        mindlin, depth = applanating_amplitude(base.replace(cornea="shell",
+        kirchhoff, _ = applanating_amplitude(base.replace(cornea="kirchhoff"))
+        mindlin, depth = applanating_amplitude(base.replace(cornea="mindlin",
                                                             transverse_shear_modulus=G_t))
         rows.append((h, kirchhoff, mindlin))
         print(f"| {h:g} | {membrane:.2f} | {kirchhoff:.2f} | {kirchhoff - membrane:+.2f} | "

@@ -13,7 +13,7 @@ Fluid compression energy per unit mass, for the equation of state (5) with B = r
 from numba import njit
 
 from .fluid import viscous_laplacian
-from .membrane import add_pressure_loads, air_jet
+from .membrane import add_pressure_loads
 from .nodes import AXIS, INTERIOR
 
 
@@ -81,11 +81,3 @@ def pressure_load_work(X0, Y0, X1, Y1, q0, q1, F0x, F0y, F1x, F1y):
     for i in range(X0.shape[0]):
         w += 0.5 * ((F0x[i] + F1x[i]) * (X1[i] - X0[i]) + (F0y[i] + F1y[i]) * (Y1[i] - Y0[i]))
     return w
-
-
-@njit(cache=True)
-def jet_pressures(t, phi, jet, out):
-    """out[k] = the air jet, eq. (11), at time t [s] on the node of reference angle phi[k]
-    [Pa]; jet = (pmax, a, b, T, t0) as ``SIParams.jet()``."""
-    for k in range(phi.shape[0]):
-        out[k] = air_jet(t, phi[k], jet[0], jet[1], jet[2], jet[3], jet[4])

@@ -92,13 +92,6 @@ def add_pressure_loads(X, Y, q, Fx, Fy):
 
 
 @njit(cache=True)
-def air_jet(t, phi, pmax, a, b, T, t0):
-    """Eq. (11): p_a = pmax exp(-a sin^2 phi) exp(-b (t - t0)^2 / T^2)  [Pa]."""
-    s = np.sin(phi)
-    return pmax * np.exp(-a * s * s) * np.exp(-b * (t - t0) * (t - t0) / (T * T))
-
-
-@njit(cache=True)
 def max_wave_speed(X, Y, L0, S0, Ebar, nu, k, rho_h):
     """Largest in-plane wave speed [m/s] from the tangent stiffness of the current state:
     c^2 = (N + lambda^2 dN/dE) / (rho_c h), maximised over segments and both directions."""

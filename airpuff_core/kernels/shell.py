@@ -28,8 +28,8 @@ forces from the resultants, so a history of N and M (viscoelasticity) can act be
 import numpy as np
 from numba import njit
 
-from .membrane import (add_pressure_loads, add_segment_forces, air_jet, fung_resultants,
-                       segment_strains)
+from .air_jet import air_jet
+from .membrane import add_pressure_loads, add_segment_forces, fung_resultants, segment_strains
 from .viscoelastic import relax_in_place
 
 LIMBUS_PINNED = 0

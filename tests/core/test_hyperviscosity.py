@@ -23,21 +23,21 @@ def model():
 def _apply(model, f, parity):
     n = f.shape[0]
     out, w1, w2 = np.empty(n), np.empty(n), np.empty(n)
-    return model.ops_n.hyperviscous(f, parity, model.hv_scale_unit, w1, w2, out, consistent=True)
+    return model.fluid.ops_n.hyperviscous(f, parity, model.fluid.hv_scale_unit, w1, w2, out, consistent=True)
 
 
 def _brookshaw_cubed(model, f, parity):
-    args = model.ops_n.laplacian_args()
+    args = model.fluid.ops_n.laplacian_args()
     a, b, c = np.empty_like(f), np.empty_like(f), np.empty_like(f)
     brookshaw_laplacian(f, parity, *args, a)
     brookshaw_laplacian(a, parity, *args, b)
     brookshaw_laplacian(b, parity, *args, c)
-    return c * model.hv_scale_unit
+    return c * model.fluid.hv_scale_unit
 
 
 @pytest.mark.parametrize("field", ["even: 1 + y", "odd: x", "even: x + y/2 (off the axis)"])
 def test_linear_fields_are_annihilated_at_every_kind_of_node(model, field):
-    x, y, kind = model.x, model.y, model.kind
+    x, y, kind = model.x, model.y, model.fluid.kind
     scale = 1e3  # 1/m: gradients of order 1 per mm
     if field.startswith("even: 1"):
         f, parity, where = 1.0 + scale * (y - y.mean()), 1.0, np.ones(x.size, bool)
@@ -47,7 +47,7 @@ def test_linear_fields_are_annihilated_at_every_kind_of_node(model, field):
         # x is not even in x: mirror images make it |x|, so look only beyond the reach of H
         # (three supports) from the axis
         f, parity = scale * (x + 0.5 * y), 1.0
-        where = x > 3.5 * KAPPA * model.ops_n.h.max()
+        where = x > 3.5 * KAPPA * model.fluid.ops_n.h.max()
     new = np.abs(_apply(model, f, parity))
     old = np.abs(_brookshaw_cubed(model, f, parity))
     kinds = (WALL, CORNEA, INTERIOR) + ((AXIS,) if parity > 0 and where.all() else ())
@@ -95,14 +95,14 @@ def test_self_adjoint_and_negative_semi_definite(model, parity):
     off-axis nodes."""
     x = model.x
     on_axis = x == 0.0
-    assert on_axis.sum() > (model.kind == AXIS).sum()  # the apex and a wall node lie there too
+    assert on_axis.sum() > (model.fluid.kind == AXIS).sum()  # the apex and a wall node lie there too
     nodes = np.arange(x.size) if parity > 0 else np.flatnonzero(~on_axis)
     n = x.size
     H = np.empty((n, nodes.size))
     for c, j in enumerate(nodes):
         e = np.zeros(n)
         e[j] = 1.0
-        H[:, c] = _apply(model, e, parity) / model.hv_scale_unit
+        H[:, c] = _apply(model, e, parity) / model.fluid.hv_scale_unit
     H = H[nodes]
     weight = (model.chamber.area * np.where(on_axis, 0.5, 1.0))[nodes]
     WH = weight[:, None] * H
@@ -122,7 +122,7 @@ def test_with_brookshaw_coefficients_it_is_l_cubed(parity):
     operator: a check of the adjoint's code against three plain Brookshaw passes, on a random
     field (zero on the axis for the odd parity, as v_x is)."""
     model = CoupledModel(RunParams(resolution="coarse", hyperviscosity_operator="consistent"))
-    ops = model.ops_n
+    ops = model.fluid.ops_n
     ops.lap_c[:] = ops.lap_b
     f = np.random.default_rng(1).standard_normal(model.x.size)
     if parity < 0:

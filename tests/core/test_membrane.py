@@ -9,8 +9,8 @@ import pytest
 from airpuff_core import RunParams
 from airpuff_core.coupling import CoupledModel
 from airpuff_core.kernels.membrane import fung_resultants, internal_forces
-from airpuff_core.membrane import (apex_curvature, apex_fit_nodes, build_membrane,
-                                   equibiaxial_tension, prestretch)
+from airpuff_core.cornea.apex import apex_curvature, apex_fit_nodes
+from airpuff_core.cornea.reference import build_membrane, equibiaxial_tension, prestretch
 
 EBAR, NU = 333.0, 0.5
 
@@ -103,7 +103,7 @@ def test_apex_fit_has_the_same_form_at_every_resolution(resolution):
     physical radius (>= 3 nodes), exact on any even quartic profile, and within O(R_fit^4) of the
     apex curvature of a sphere."""
     from airpuff_core.geometry import build_chamber
-    from airpuff_core.membrane import APEX_FIT_RADIUS
+    from airpuff_core.cornea.apex import APEX_FIT_RADIUS
     p = RunParams(resolution=resolution).si()
     ch = build_chamber("sector", "isotropic", resolution, p.R_m, p.r_post_m, p.alpha0_rad)
     X = p.R_m * np.sin(ch.phi_cornea)

@@ -11,13 +11,15 @@ import numpy as np
 import pytest
 
 from airpuff_core import ParameterError, RunParams, simulate
+from airpuff_core.cornea.build import build_shell, shell_on_meridian
+from airpuff_core.cornea.kirchhoff import KirchhoffShell, plate_rigidity
+from airpuff_core.cornea.membrane import Membrane
+from airpuff_core.cornea.mindlin import MindlinShell
+from airpuff_core.cornea.reference import static_equilibrium
+from airpuff_core.cornea.tissue import NO_HISTORY, ViscoelasticTissue
 from airpuff_core.kernels.mindlin import (SHEAR_CORRECTION, mindlin_internal_forces, mindlin_rows,
                                           mindlin_work)
 from airpuff_core.kernels.viscoelastic import relaxation_function
-from airpuff_core.membrane import static_equilibrium
-from airpuff_core.shell import (NO_HISTORY, MindlinShellModel, ShellModel, build_shell,
-                                plate_rigidity, shell_on_meridian)
-from airpuff_core.viscoelastic import ViscoelasticHistory
 from tests.core.test_shell import reference_membrane
 
 P0 = 16 * 133.322  # Pa
@@ -59,7 +61,7 @@ def test_forces_and_moments_are_minus_energy_gradient(limbus, k):
     phi = np.linspace(0, math.radians(60), n)
     rng = np.random.default_rng(3)
     m = build_shell(phi, R, P0, 0.5e6, 0.5e-3, 0.5, k, 1000.0, limbus, transverse_shear_modulus=G_T)
-    assert isinstance(m, MindlinShellModel)
+    assert isinstance(m, MindlinShell)
     assert m.S == pytest.approx(SHEAR_CORRECTION * G_T * _thickness(m), rel=1e-12)
     X = 1.01 * R * np.sin(phi) + rng.uniform(-2e-5, 2e-5, n)
     Y = 1.01 * R * np.cos(phi) + rng.uniform(-2e-5, 2e-5, n)
@@ -127,9 +129,9 @@ def test_thin_plate_recovers_kirchhoff_without_locking(n):
 def test_zero_shear_modulus_is_the_kirchhoff_shell():
     phi = np.linspace(0, math.radians(60), 26)
     m = build_shell(phi, R, P0, 0.5e6, 0.5e-3, 0.5, 240.0, 1000.0, transverse_shear_modulus=0.0)
-    assert type(m) is ShellModel
+    assert type(m) is KirchhoffShell
     assert type(build_shell(phi, R, P0, 0.5e6, 0.5e-3, 0.5, 240.0, 1000.0, bending=False,
-                            transverse_shear_modulus=G_T)) is ShellModel  # the membrane
+                            transverse_shear_modulus=G_T)) is Membrane
 
 
 @pytest.mark.parametrize("n", [26, 50])
@@ -251,7 +253,7 @@ def test_strain_step_relaxes_as_G_with_shear():
     Y1[3] -= 2e-5
     beta1 = m.beta_ref.copy()
     beta1[5] += 0.01
-    history = ViscoelasticHistory(m, [g], [tau], X0, Y0)
+    history = ViscoelasticTissue(m, [g], [tau], X0, Y0)
     assert history.previous.shape == (5, m.n)
     s_eq0 = _mindlin_resultants(m, X0, Y0, m.beta_ref)
     step = _mindlin_resultants(m, X1, Y1, beta1) - s_eq0

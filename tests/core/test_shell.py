@@ -10,10 +10,11 @@ import pytest
 import xarray as xr
 
 from airpuff_core import ParameterError, RunParams, simulate
+from airpuff_core.cornea.build import build_shell, shell_on_meridian
+from airpuff_core.cornea.kirchhoff import plate_rigidity
+from airpuff_core.cornea.reference import build_membrane, static_equilibrium
 from airpuff_core.dataset import params_from_dataset, write_netcdf
 from airpuff_core.kernels.membrane import internal_forces
-from airpuff_core.membrane import build_membrane, static_equilibrium
-from airpuff_core.shell import build_shell, plate_rigidity, shell_on_meridian
 
 P0 = 16 * 133.322  # Pa
 R = 7e-3  # m
@@ -245,11 +246,11 @@ def test_rest_state_stays_on_the_drawn_arc():
 
 def test_model_preset_and_explicit_options():
     assert RunParams().model == "paper" and RunParams().cornea == "membrane"
-    assert RunParams(model="clinical").cornea == "shell"
+    assert RunParams(model="clinical").cornea == "mindlin"  # the preset's shell, G_t > 0
     assert RunParams(model="clinical", cornea="membrane").cornea == "membrane"
-    assert RunParams(model="paper", cornea="shell").cornea == "shell"
+    assert RunParams(model="paper", cornea="shell").cornea == "kirchhoff"  # G_t = 0
     assert RunParams(model="clinical").replace(model="paper").cornea == "membrane"
-    assert RunParams(model="clinical").replace(E0=0.3).cornea == "shell"
+    assert RunParams(model="clinical").replace(E0=0.3).cornea == "mindlin"
     for name, bad in (("cornea", "plate"), ("model", "clinic"), ("limbus", "free")):
         with pytest.raises(ParameterError, match=f"invalid {name}=.*accepted one of"):
             RunParams(**{name: bad})
@@ -262,9 +263,9 @@ def test_shell_run_parameters_round_trip_through_netcdf(tmp_path):
     result = simulate(params)
     path = write_netcdf(result.to_dataset(), tmp_path / "shell.nc")
     with xr.open_dataset(path) as ds:
-        assert ds.attrs["cornea"] == "shell" and ds.attrs["limbus"] == "pinned"
+        assert ds.attrs["cornea"] == "mindlin" and ds.attrs["limbus"] == "pinned"
         assert ds.attrs["model"] == "clinical"
-        assert ds.attrs["title"].startswith("airpuff: coupled shell / MFPM")
+        assert ds.attrs["title"].startswith("airpuff: coupled mindlin / MFPM")
         assert params_from_dataset(ds) == params
         D = ds.attrs["solver_bending_rigidity_N_m"]
     assert D == pytest.approx(plate_rigidity(0.5e6, 0.5e-3, 0.5), rel=1e-12)

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from numpy.polynomial import legendre
 
-from airpuff_core import RunParams
+from airpuff_core import RunParams, step_control
 from airpuff_core.coupling import CoupledModel
-from airpuff_core import coupling
 from airpuff_core.kernels.hyperviscosity import (hyperviscous_flow_increments, increments_work,
                                                  legendre_plan)
 from airpuff_core.kernels.mfpm import flow_operator_work, hyperviscous_flow_operator
@@ -22,14 +21,14 @@ def model():
 
 
 def _operator_args(model):
-    return (*model.ops_n.hyperviscosity_args(), model.hv_consistent_density,
-            model.hv_consistent_velocity)
+    return (*model.fluid.ops_n.hyperviscosity_args(), model.fluid.hv_consistent_density,
+            model.fluid.hv_consistent_velocity)
 
 
 def _scaled_operator_matrix(model, slot):
     """The matrix of f -> S H f on field ``slot`` (0 rho, 1 v_x, 2 v_y), column by column."""
     n = model.x.size
-    scale = model.si.hyperviscosity * model.c * model.hv_scale_unit
+    scale = model.si.hyperviscosity * model.c * model.fluid.hv_scale_unit
     M = np.empty((n, n))
     out = np.empty((3, n))
     for j in range(n):
@@ -74,10 +73,10 @@ def test_plan_covers_the_steps_damps_and_costs_no_more_than_forward_euler(steps)
     assert supersteps * (stages ** 2 + stages) / 2 >= steps
     assert supersteps * stages <= max(1, np.ceil(steps))
     assert stages == 1 or supersteps >= 2
-    z = np.linspace(-steps * coupling.HV_SAFETY, 0.0, 4001)
+    z = np.linspace(-steps * step_control.HV_SAFETY, 0.0, 4001)
     factor = _plan_factor(z, supersteps, stages)
     assert factor.max() <= 1.0 + 1e-12
-    assert factor.min() >= 1.0 - coupling.HV_SAFETY - 1e-12, factor.min()
+    assert factor.min() >= 1.0 - step_control.HV_SAFETY - 1e-12, factor.min()
     assert np.all(np.abs(factor[z < -0.5]) < 1.0)
     # first-order accurate: the factor is 1 + z + O(z^2) for small z
     small = np.array([-1e-4, -1e-3])
@@ -108,7 +107,7 @@ def test_stages_are_the_legendre_polynomial_and_stay_bounded(model, stages, supe
     assert np.abs(out[0] - expected).max() < 1e-9 * np.abs(f).max()
     if stages == 1 and supersteps == 1:  # one forward-Euler step
         assert np.allclose(out[0], dt * M @ f, rtol=0, atol=1e-12 * np.abs(f).max())
-    weight = model.ops_n.adjoint_weight
+    weight = model.fluid.ops_n.adjoint_weight
     assert np.sum(weight * (f + out[0]) ** 2) <= np.sum(weight * f ** 2) * (1 + 1e-12)
     # the stiff modes are damped, not merely bounded: the stiffest mode's factor is P_s^K at
     # 1 - 2 * 0.95 = -0.9
@@ -125,14 +124,14 @@ def test_pinned_values_stay_and_the_rest_follows_the_free_block(model):
     P_s of the operator's block on the free nodes (the pinned values enter as constants,
     here zero)."""
     M, scale = _scaled_operator_matrix(model, 2)
-    pinned = model.pinned_vy
+    pinned = model.fluid.pinned_vy
     free = ~pinned
     n = model.x.size
     stages = 3
     lam_max = np.abs(np.linalg.eigvals(M)).max()
     dt = 0.6 * (stages ** 2 + stages) / lam_max
     f = np.random.default_rng(7).standard_normal(n) * free
-    out = _increments(model, (np.zeros(n), np.zeros(n), f), model.pinned_vx, pinned, scale, dt,
+    out = _increments(model, (np.zeros(n), np.zeros(n), f), model.fluid.pinned_vx, pinned, scale, dt,
                       stages)
     assert np.all(out[2][pinned] == 0.0)
     assert np.all(out[1] == 0.0)  # v_x = 0 stays 0

@@ -33,8 +33,8 @@ def model(request):
 def _flow(model, fields, n_chunks):
     n = model.x.size
     out = np.empty((3, n))
-    hyperviscous_flow_operator(*fields, *model.ops_n.hyperviscosity_args(),
-                               model.hv_consistent_density, model.hv_consistent_velocity,
+    hyperviscous_flow_operator(*fields, *model.fluid.ops_n.hyperviscosity_args(),
+                               model.fluid.hv_consistent_density, model.fluid.hv_consistent_velocity,
                                n_chunks, flow_operator_work(n), *out)
     return out
 
@@ -46,11 +46,11 @@ def test_flow_operator_is_the_single_field_operator_on_each_field(model):
     rng = np.random.default_rng(1)
     fields = rng.standard_normal((3, n))
     out = _flow(model, fields, 1)
-    ops = model.ops_n
+    ops = model.fluid.ops_n
     w1, w2 = np.empty(n), np.empty(n)
-    for slot, parity, consistent in ((0, 1.0, model.hv_consistent_density),
-                                     (1, -1.0, model.hv_consistent_velocity),
-                                     (2, 1.0, model.hv_consistent_velocity)):
+    for slot, parity, consistent in ((0, 1.0, model.fluid.hv_consistent_density),
+                                     (1, -1.0, model.fluid.hv_consistent_velocity),
+                                     (2, 1.0, model.fluid.hv_consistent_velocity)):
         ref = np.empty(n)
         hyperviscous_term(fields[slot], parity, *ops.hyperviscosity_args(), consistent,
                           np.ones(n), w1, w2, ref)
@@ -70,10 +70,10 @@ def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
     """Every output of the build (derivatives, condition numbers, the Brookshaw and consistent
     pair lists) is the same, bit for bit, with one chunk or several."""
     model = CoupledModel(RunParams(resolution="coarse"))
-    ops = model.ops_n
+    ops = model.fluid.ops_n
     n = model.x.size
     rng = np.random.default_rng(3)
-    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.kind == 0)
+    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.fluid.kind == 0)
     fields = rng.standard_normal((3, n))
     parity = np.array([1.0, -1.0, 1.0])
     ops.table.update(x, model.y)
@@ -102,7 +102,7 @@ def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
     processes, e.g. a Dask worker and its client; a build with reassociated reductions did).  Twenty builds, each after an allocation that shifts the heap, in 1-3 chunks,
     give the same consistent-Laplacian coefficients and derivatives bit for bit."""
     model = CoupledModel(RunParams(resolution="coarse"))
-    ops, t = model.ops_n, model.ops_n.table
+    ops, t = model.fluid.ops_n, model.fluid.ops_n.table
     n = model.x.size
     fields = np.stack([np.sin(300 * model.x), np.cos(200 * model.y)])
     parity = np.array([-1.0, 1.0])
@@ -128,10 +128,10 @@ def build_and_operator_outputs():
     numbers, both pair lists) and of the three-field hyperviscous operator, on one chunk and
     on three, at nodes moved off the lattice."""
     model = CoupledModel(RunParams(resolution="coarse"))
-    ops, t = model.ops_n, model.ops_n.table
+    ops, t = model.fluid.ops_n, model.fluid.ops_n.table
     n = model.x.size
     rng = np.random.default_rng(5)
-    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.kind == 0)
+    x = model.x + 0.02 * ops.h * rng.standard_normal(n) * (model.fluid.kind == 0)
     ops.table.update(x, model.y)
     fields = rng.standard_normal((3, n))
     ops.start[:] = t.start

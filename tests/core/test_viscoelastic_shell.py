@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from airpuff_core import RunParams, simulate
+from airpuff_core.cornea.build import build_shell
+from airpuff_core.cornea.tissue import NO_HISTORY, ViscoelasticTissue
 from airpuff_core.kernels.shell import shell_internal_forces, shell_work, work_rows
 from airpuff_core.kernels.viscoelastic import relaxation_function
 from airpuff_core.params import SWEPT
-from airpuff_core.shell import NO_HISTORY, build_shell
-from airpuff_core.viscoelastic import ViscoelasticHistory
 from api import sweep_form
 from api.schemas import sweep_request_model
 from sweep.grid import SweepSpec
@@ -52,7 +52,7 @@ def test_strain_step_relaxes_as_G_in_the_shell_kernel():
     m = _shell()
     g, tau = 0.3, 10e-3
     X0, Y0, X1, Y1 = _rest_and_step(m)
-    history = ViscoelasticHistory(m, [g], [tau], X0, Y0)
+    history = ViscoelasticTissue(m, [g], [tau], X0, Y0)
     s_eq0, _ = _resultants(m, X0, Y0)
     s_eq1, _ = _resultants(m, X1, Y1)
     step = s_eq1 - s_eq0
@@ -74,7 +74,7 @@ def test_strain_step_relaxes_as_G_in_the_shell_kernel():
 def test_zero_g_is_the_elastic_law_bit_for_bit():
     m = _shell()
     X0, Y0, X1, Y1 = _rest_and_step(m)
-    history = ViscoelasticHistory(m, [0.0], [10e-3], X0, Y0)
+    history = ViscoelasticTissue(m, [0.0], [10e-3], X0, Y0)
     history.set_substep(1e-5)
     _, (Fx_e, Fy_e) = _resultants(m, X1, Y1)
     _, (Fx_v, Fy_v) = _resultants(m, X1, Y1, 2, history.begin_trial())
@@ -106,7 +106,7 @@ def test_clinical_preset_and_explicit_options():
     parameters; explicit options override it, also through the HTTP request model and the
     browser's form (whose omitted preset parameters stay None, so that the preset fills them)."""
     p = RunParams(model="clinical")
-    assert (p.cornea, p.globe, p.ve_g, p.ve_tau) == ("shell", "compliant", 0.3, 10.0)
+    assert (p.cornea, p.globe, p.ve_g, p.ve_tau) == ("mindlin", "compliant", 0.3, 10.0)
     paper = RunParams()
     assert (paper.cornea, paper.globe, paper.ve_g) == ("membrane", "rigid", 0.0)
     assert RunParams(model="clinical", ve_g=0.1).ve_g == 0.1
@@ -116,7 +116,8 @@ def test_clinical_preset_and_explicit_options():
     values.pop("retry_failed", None)  # a job option, not a run's (as api/routes.py does)
     axes = {k: values.pop(k) for k in SWEPT}
     point = SweepSpec(**axes, options=values).validate().validated_points()[0]
-    assert (point.cornea, point.globe, point.ve_g, point.ve_tau) == ("shell", "rigid", 0.3, 10.0)
+    assert (point.cornea, point.globe, point.ve_g, point.ve_tau) == ("mindlin", "rigid", 0.3,
+                                                                     10.0)
     # the browser's sweep form leaves the preset's fields empty, so the preset fills them
     form = {**sweep_form.defaults(), "model": "clinical", "E0": "0.5", "IOP": "16"}
     body, errors = sweep_form.request_from_form(form, 10)
@@ -125,7 +126,7 @@ def test_clinical_preset_and_explicit_options():
     values.pop("retry_failed", None)
     axes = {k: values.pop(k) for k in SWEPT}
     point = SweepSpec(**axes, options=values).validate().validated_points()[0]
-    assert (point.cornea, point.globe, point.ve_g) == ("shell", "compliant", 0.3)
+    assert (point.cornea, point.globe, point.ve_g) == ("mindlin", "compliant", 0.3)
 
 
 def test_apex_moment_is_the_bending_law_at_the_apex():

@@ -6,7 +6,7 @@ metric."""
 import numpy as np
 import pytest
 
-from airpuff_core import RunParams, coupling, simulate
+from airpuff_core import RunParams, simulate, step_control
 from airpuff_core.stability import forward_euler_viscous_limit, viscous_operator
 
 
@@ -18,7 +18,7 @@ def test_safety_constant_within_the_forward_euler_limit(component):
     M, h_min = viscous_operator(RunParams(resolution="coarse"), component)
     C_fe, undamped = forward_euler_viscous_limit(M, h_min)
     assert undamped == 0
-    assert C_fe >= 2.0 * coupling.VISCOUS_SAFETY, C_fe
+    assert C_fe >= 2.0 * step_control.VISCOUS_SAFETY, C_fe
     # against the classical bound: the operator is a Laplacian of spacing ~h, so its largest
     # eigenvalue is of order 8/h^2 (five-point stencil) and C_FE of order 1/4, not orders apart
     assert 0.1 < C_fe < 2.0
@@ -34,13 +34,13 @@ def test_halving_the_step_at_a_large_viscosity_moves_no_metric():
     assert d["viscous_limited_steps"] == d["steps"]
     h = 0.2918e-3  # coarse node spacing [m]
     # rho in the limit is the smallest density of the step, within 1 % of the reference
-    assert d["dt_max_us"] * 1e-6 <= coupling.VISCOUS_SAFETY * 1000.0 * h ** 2 / 2.5 * 1.01
-    safety = coupling.VISCOUS_SAFETY
+    assert d["dt_max_us"] * 1e-6 <= step_control.VISCOUS_SAFETY * 1000.0 * h ** 2 / 2.5 * 1.01
+    safety = step_control.VISCOUS_SAFETY
     try:
-        coupling.VISCOUS_SAFETY = safety / 2
+        step_control.VISCOUS_SAFETY = safety / 2
         half = simulate(params.replace(cfl=params.cfl / 2))
     finally:
-        coupling.VISCOUS_SAFETY = safety
+        step_control.VISCOUS_SAFETY = safety
     assert half.diagnostics["steps"] >= 2 * d["steps"] - 1
     for k, tol in (("P1", 0.05), ("P2", 0.05), ("CH", 0.05), ("t_A1", 0.05), ("t_A2", 0.05),
                    ("DA", 0.005)):

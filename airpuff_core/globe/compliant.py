@@ -43,6 +43,10 @@ import math
 
 import numpy as np
 
+from ..kernels.fluid import tait_pressure_at
+from ..kernels.membrane import cornea_polygon_volume
+from ..kernels.nodes import WALL
+
 LN10 = math.log(10.0)
 # s: time in which the wall makes up the fluid's volume drift (CompliantWall.commit); short
 # against the puff (~20 ms), long against a solver step (~5 us)
@@ -206,3 +210,88 @@ def enclosed_volume_rate(xc, yc, vxc, vyc, y_axis):
     dS = np.sum(((2 * xa + xb) * ua + (xa + 2 * xb) * ub) * (ya - yb)
                 + (xa * xa + xa * xb + xb * xb) * (wa - wb))
     return math.copysign(1.0, S) * math.pi / 3.0 * dS
+
+
+def wall_span(si, geometry):
+    """(x_c, x_l) [m]: where the walls' share of the displacement starts to fall (the posterior
+    sphere's rim; 0 for the cap's plane) and the limbus, where it reaches 0."""
+    x_l = si.R_m * math.sin(si.alpha0_rad)
+    x_c = si.r_post_m * math.sin(si.alpha0_rad) if geometry == "sector" else 0.0
+    return x_c, x_l
+
+
+class WallPressure:
+    """The fluid's mean pressure on the walls behind it, weighted by the volume each wall node
+    sweeps when the globe is compliant (``wall_weights``), for either globe."""
+
+    def __init__(self, si, geometry, chamber):
+        x_c, x_l = wall_span(si, geometry)
+        self.nodes = np.flatnonzero(chamber.kind == WALL)
+        self.weight = wall_weights(chamber.x[self.nodes], x_c, x_l)[1]
+        self.rho0, self.p0, self.gamma = si.rho_fluid, si.p0_Pa, si.tait_gamma
+        self._pressure = np.empty(self.nodes.shape[0])  # work array [Pa]
+
+    def mean(self, rho, c):
+        """The mean wall pressure [Pa] of the density field rho with the sound speed c [m/s]."""
+        tait_pressure_at(self.nodes, rho, self.rho0, self.p0, c, self.gamma, self._pressure)
+        return float(np.dot(self.weight, self._pressure))
+
+
+class CompliantGlobe:
+    """The globe of ``globe = compliant`` in the coupled step: the ``CompliantWall`` moved by the
+    volume the cornea encloses and by the fluid's acoustic pressure on it, its trial state in the
+    coupling iterations, and the work of the fluid on it.  The same methods as ``RigidGlobe``."""
+
+    def __init__(self, si, geometry, chamber, X, Y, mass):
+        """``si``: SIParams; ``geometry``: sector or cap; ``chamber``: the Chamber; (X, Y) [m]: the
+        cornea at rest; ``mass``: the fluid nodes' masses [kg]."""
+        # the closing point of the polygon whose volume the cornea encloses
+        self.volume_axis_y = 0.0 if geometry == "sector" else float(Y[-1])
+        self.cornea_volume0 = cornea_polygon_volume(X, Y, self.volume_axis_y)
+        self.walls = WallPressure(si, geometry, chamber)
+        self.wall = CompliantWall(chamber.x, chamber.y, self.walls.nodes, *wall_span(si, geometry),
+                                  si.ocular_rigidity_per_m3, si.p0_Pa, si.rho_fluid, mass,
+                                  si.tait_gamma)
+        self._trial = None
+
+    def start(self, fluid_volume, chamber_volume):
+        """At rest: the fluid's volume sum m/rho and the chamber's [m^3] set the make-up of the
+        volume drift (``CompliantWall.volume_offset``)."""
+        self.wall.volume_offset = fluid_volume - chamber_volume
+
+    def impose(self, X, Y, VX, VY, c, dt, y, vx, vy):
+        """Move the walls where the globe's law puts them for the trial cornea state
+        (X, Y, VX, VY) at t^{n+1}, into the trial fluid state (y, vx, vy), with the sound
+        speed c [m/s] of a step of dt [s]."""
+        volume_change = cornea_polygon_volume(X, Y, self.volume_axis_y) - self.cornea_volume0
+        volume_rate = enclosed_volume_rate(X, Y, VX, VY, self.volume_axis_y)
+        self._trial = self.wall.wall_state(volume_change, volume_rate, c, dt)
+        self.wall.impose(self._trial[0], self._trial[1], y, vx, vy)
+
+    def work(self, rho_n, rho_new, c):
+        """Work [J] of the fluid on the walls over the step just coupled: the mean wall pressure
+        of its two ends (densities rho_n, rho_new) times the volume the walls gave way by."""
+        wall = self.wall
+        p_start = self.walls.mean(rho_n, c)
+        p_end = self.walls.mean(rho_new, c)
+        return 0.5 * (p_start + p_end) * wall.area * (self._trial[0] - wall.displacement)
+
+    def commit(self, fluid_volume, cornea_chamber_volume, dt, c, rho):
+        """Accept the trial walls of a step of dt [s]: ``fluid_volume`` sum m/rho [m^3] of the
+        new state, ``cornea_chamber_volume`` the chamber's volume [m^3] with the walls at rest,
+        ``rho`` the new density field, whose mean wall pressure sets the transmitted give."""
+        self.wall.displacement = self._trial[0]
+        self.wall.commit(self._trial, fluid_volume, cornea_chamber_volume + self.volume_change(),
+                         dt, c, self.walls.mean(rho, c))
+
+    def wall_pressure(self, rho, c):
+        """The fluid's mean pressure on the walls [Pa] (``WallPressure``)."""
+        return self.walls.mean(rho, c)
+
+    def volume_change(self):
+        """Volume [m^3] by which the walls have given way."""
+        return self.wall.area * self.wall.displacement
+
+    def pressure(self):
+        """The pressure [Pa] of the globe's law for the volume the cornea has pushed in."""
+        return self.wall.pressure

@@ -1,13 +1,18 @@
-"""The cornea's viscoelastic history: Prony terms, overstresses of N and M, their energy (SI).
+"""The tissue law of the cornea, applied to any cornea model's resultants: elastic, or
+viscoelastic with Prony terms (SI).
 
-The kernel (``kernels/viscoelastic.py``) updates the overstresses of each resultant by Simo's
-recursion; this module holds their state through a run and measures their energy for the budget
+``ElasticTissue`` adds nothing.  ``ViscoelasticTissue`` holds the overstresses of each of the
+model's resultants, which the cornea kernels update by Simo's recursion
+(``kernels/viscoelastic.py``), through a run, and measures their energy for the budget
 (``energy.py``).  E0 is the equilibrium modulus (docs/model.md, "Viscoelasticity"): the cornea
 starts fully relaxed, with no overstress, and its rest state is the elastic model's.
 
-State at t^n (rows: N1, N2 per segment in the first n - 1 entries; M_s, M_theta per node, or
-per segment for the shear-deformable shell, which adds its transverse shear force Q as row 4;
-``model.history_rows`` rows):
+The model declares its resultants (``resultant_rows``; ``history_strains`` gives them and their
+strains) and the energy and work of the overstresses of the rows beyond the membrane's N1, N2
+(``overstress_bending_energy``, ``add_overstress_bending_work``).  State at t^n (rows: N1, N2
+per segment in the first n - 1 entries, then the model's others, e.g. M_s, M_theta per node of
+the Kirchhoff shell, or per segment and the transverse shear force Q for the shear-deformable
+one):
 
 - ``previous`` (rows, n): the equilibrium-law resultants of the last evaluation;
 - ``overstress`` (terms, rows, n): q_i, zero at rest;
@@ -26,11 +31,54 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels.viscoelastic import prony_step_factors
+from ..kernels.viscoelastic import prony_step_factors
+
+# the history arguments of the cornea kernels of an elastic cornea (not read; rows enough for the
+# largest model's five resultants)
+NO_HISTORY = (np.zeros((5, 1)), np.zeros((1, 5, 1)), np.ones(1), np.zeros(1))
 
 
-class ViscoelasticHistory:
-    """Prony terms g [1], tau [s] and the history of one cornea (``model``: a ShellModel)."""
+def tissue_for_run(si, model, X_rest, Y_rest):
+    """The tissue law of a run (``SIParams`` si): viscoelastic with the one Prony term (ve_g,
+    ve_tau) when ve_g > 0, else elastic; ``model`` at rest at (X_rest, Y_rest) [m]."""
+    if si.ve_g > 0.0:
+        return ViscoelasticTissue(model, [si.ve_g], [si.ve_tau_s], X_rest, Y_rest)
+    return ElasticTissue()
+
+
+class ElasticTissue:
+    """The elastic cornea: no history, no overstress, no stored or dissipated energy."""
+
+    viscoelastic = False
+    overstress = None  # the overstresses of the state (none)
+    trial_overstress = None
+
+    def set_substep(self, h):
+        """Nothing to prepare for sub-steps of h [s]."""
+
+    def begin_trial(self):
+        """The history arguments of the cornea kernels (not read)."""
+        return NO_HISTORY
+
+    def stored_history(self):
+        """(mode, history arguments) of the cornea's force kernels for the state: mode 0, the
+        equilibrium law alone."""
+        return (0, *NO_HISTORY)
+
+    def commit(self):
+        """No state to accept."""
+
+    def stored_energy(self, overstress):
+        return 0.0
+
+    def overstress_work(self, X0, Y0, X1, Y1, overstress0, overstress1):
+        return 0.0
+
+
+class ViscoelasticTissue:
+    """Prony terms g [1], tau [s] and the history of one cornea model's resultants."""
+
+    viscoelastic = True
 
     def __init__(self, model, g, tau, X_rest, Y_rest):
         self.g = np.asarray(g, dtype=float)
@@ -43,7 +91,7 @@ class ViscoelasticHistory:
         self._work = model.history_work()
         self._work1 = model.history_work()
         # the relaxed rest state: previous = its equilibrium resultants, no overstress
-        rows = model.history_rows
+        rows = model.resultant_rows
         self.previous = np.zeros((rows, n))
         self.overstress = np.zeros((self.g.shape[0], rows, n))
         (E1, E2, *_), resultants = model.history_strains(X_rest, Y_rest, self._work)
@@ -81,6 +129,11 @@ class ViscoelasticHistory:
     def trial_overstress(self):
         return self._trial[1]
 
+    def stored_history(self):
+        """(mode, history arguments) of the cornea's force kernels for the state: mode 1, the
+        stored overstresses added to the equilibrium law (no update)."""
+        return (1, self.previous, self.overstress, self.decay, self.weight)
+
     def commit(self):
         """The trial history becomes the state (buffers swapped, not copied)."""
         committed = (self.previous, self.overstress)
@@ -92,21 +145,11 @@ class ViscoelasticHistory:
         m = self.model
         n = m.n
         c11, c12, c22 = self._membrane_compliance
-        area = m.bending_area
-        cells = area.shape[0]
         energy = 0.0
         for i in range(self.g.shape[0]):
             qN1, qN2 = overstress[i, 0, :n - 1], overstress[i, 1, :n - 1]
             membrane = np.sum(m.A0 * (c11 * qN1 * qN1 + 2.0 * c12 * qN1 * qN2 + c22 * qN2 * qN2))
-            bending = 0.0
-            if m.D != 0.0:
-                qMs, qMt = overstress[i, 2, :cells], overstress[i, 3, :cells]
-                # C^-1 of D [[1, nu], [nu, 1]]
-                inv = 1.0 / (m.D * (1.0 - m.nu * m.nu))
-                bending = np.sum(area * inv * (qMs * qMs - 2.0 * m.nu * qMs * qMt + qMt * qMt))
-            if m.history_rows > 4:
-                qQ = overstress[i, 4, :n - 1]
-                bending += np.sum(m.A0 * qQ * qQ) / m.S
+            bending = m.overstress_bending_energy(overstress[i])
             energy += self.g_inf / (2.0 * self.g[i]) * (membrane + bending)
         return float(energy)
 
@@ -121,11 +164,5 @@ class ViscoelasticHistory:
         (E1b, E2b, *bend_b), _ = m.history_strains(X1, Y1, self._work1, trial=True)
         q = 0.5 * (overstress0.sum(axis=0) + overstress1.sum(axis=0))
         work = np.sum(m.A0 * (q[0, :n - 1] * (E1b - E1a) + q[1, :n - 1] * (E2b - E2a)))
-        if m.D != 0.0:
-            area = m.bending_area
-            cells = area.shape[0]
-            work += np.sum(area * (q[2, :cells] * (bend_b[0] - bend_a[0])
-                                   + q[3, :cells] * (bend_b[1] - bend_a[1])))
-        if m.history_rows > 4:
-            work += np.sum(m.A0 * q[4, :n - 1] * (bend_b[2] - bend_a[2]))
+        work = m.add_overstress_bending_work(work, q, bend_a, bend_b)
         return float(work)

@@ -1,6 +1,7 @@
-"""The cornea: reference configuration, IOP prestress and the discrete static equilibrium.  The
-advance in time is the shell's (``shell.py``): the paper's membrane is the shell with bending
-rigidity 0, computed by the same kernels bit for bit.
+"""The cornea's reference: the stress-free configuration under the IOP prestress, the discrete
+membrane that every cornea model builds on (``MembraneModel``), and the discrete static
+equilibrium.  The models and their advance in time are ``membrane.py``, ``kirchhoff.py`` and
+``mindlin.py``.
 
 The drawn arc (radius R) is the loaded state at IOP p0.  For a spherical membrane under uniform
 pressure the equibiaxial tension is p0 R / 2 (Laplace); for an equibiaxial membrane the Cauchy
@@ -21,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kernels.membrane import (add_pressure_loads, even_fit_curvature, fung_resultants,
-                               internal_forces, max_wave_speed)
-from .params import PRESTRETCH_MAX
+from ..kernels.membrane import (add_pressure_loads, fung_resultants, internal_forces,
+                                max_wave_speed)
+from ..params import PRESTRETCH_MAX
 
 # Verlet sub-step <= MEMBRANE_SAFETY * 2 / omega_max, the Verlet limit being 2 / omega_max; for the
 # membrane, whose highest frequency is 2 c / L_min, that is MEMBRANE_SAFETY * min chord / c
@@ -126,8 +127,8 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
     node depends only on that node and its two neighbours, so nodes three apart never act on the
     same force component.  Perturbing all of them together therefore gives, in each row, exactly
     the numbers of perturbing them one by one, and six patterns (node index mod 3, x or y) give
-    the whole Jacobian from 12 force evaluations instead of 4 per node (the start-up cost of a
-    run was dominated by these evaluations).
+    the whole Jacobian from 12 force evaluations instead of 4 per node (these evaluations would
+    otherwise dominate the start-up of a run).
 
     Newton reaches the rounding level of the residual in about three iterations; that level
     (~1e-12 of the pressure scale, from the nearly cancelling tension forces) can lie above
@@ -190,34 +191,3 @@ def static_equilibrium(model: MembraneModel, X, Y, q, tol=1e-12, max_iter=50):
             break
     rel, X, Y = best
     return X, Y, rel
-
-
-# m: apex curvature is fitted over the nodes with reference x <= this radius, always with the same
-# even quartic, so that every resolution measures the same quantity (the apex curvature, to
-# O(R^4) of the fit radius R): with the earlier 0.3 mm and a quadratic below four nodes, coarse,
-# paper and fine resolution fitted three different forms (a two-point quadratic, a least-squares
-# quadratic, a quartic), and the change of form alone moved P2 by 0.17 mmHg at fine resolution
-# (docs/reproduction.md section 3).  0.6 mm holds three nodes at coarse resolution.  The radius
-# must stay small against the jet (exp(-a sin^2 phi) falls to 1/e at 1.5 mm): the net pressure,
-# and with it a membrane's curvature, varies across it (a 1 mm quadratic fit put P1, P2 0.1-0.5
-# mmHg off the apex balance).
-APEX_FIT_RADIUS = 0.6e-3
-
-
-def apex_fit_nodes(X_ref, fit_radius=APEX_FIT_RADIUS):
-    """Number of cornea nodes (apex first) whose reference x lies within ``fit_radius``, at least
-    three.  Chosen once per run, so the fit follows the same material points throughout."""
-    return max(3, int(np.searchsorted(X_ref, fit_radius * (1 + 1e-9), side="right")))
-
-
-def apex_curvature(X, Y, n_fit):
-    """Apical curvature [1/m], positive convex, from the even least-squares fit over the first
-    ``n_fit`` nodes (those within APEX_FIT_RADIUS of the axis in the reference state):
-
-        y = c0 + c2 x^2 + c4 x^4,   kappa = -2 c2
-
-    The same form over the same physical radius at every resolution, so the measure converges
-    with resolution (to the apex curvature within O(R^4)); the x^4 term keeps the variation of
-    the curvature across the fit out of kappa.
-    """
-    return even_fit_curvature(X, Y, n_fit)
