@@ -9,7 +9,10 @@ Rules:
 * the browser pages (``api.pages``) reach jobs through the jobs layer (``api.jobs``), never through
   the JSON routes (``api.routes``);
 * only the sweep engine (``sweep.engine``) submits point tasks: no other module imports
-  ``sweep.worker`` (``sweep.cluster`` excepted: it warms the workers with the task itself).
+  ``sweep.worker`` (``sweep.cluster`` excepted: it warms the workers with the task itself);
+* the cornea models live behind their registry: only ``airpuff_core.cornea`` imports the modules
+  of the models (``membrane``, ``kirchhoff``, ``mindlin``), and no module outside it names a
+  model's class (the rest of the project asks ``cornea.build.cornea_for_run`` by name).
 
 A module's own ancestor packages are not counted as its imports: Python runs a package's
 ``__init__`` before any of its modules anyway, so ``from . import __version__`` adds no order.
@@ -24,6 +27,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 LAYERS = ("airpuff_core", "sweep", "api")  # lowest first
 KERNELS = "airpuff_core.kernels"
+CORNEA = "airpuff_core.cornea"
 
 
 def project_modules(root: Path, packages=LAYERS) -> dict[str, Path]:
@@ -144,11 +148,48 @@ def rule_violations(graph: dict[str, set[str]]) -> list[str]:
     return problems
 
 
+def cornea_models(root: Path) -> dict[str, set[str]]:
+    """The modules of the cornea models (those of ``cornea/`` that define a class with a ``name``
+    attribute, as the registry's models do) -> the names of those classes."""
+    models = {}
+    for module, path in project_modules(root, (CORNEA.replace(".", "/"),)).items():
+        classes = set()
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.ClassDef) and any(
+                    isinstance(stmt, ast.Assign) and any(
+                        isinstance(t, ast.Name) and t.id == "name" for t in stmt.targets)
+                    for stmt in node.body):
+                classes.add(node.name)
+        if classes:
+            models[module] = classes
+    return models
+
+
+def cornea_violations(root: Path, graph: dict[str, set[str]]) -> list[str]:
+    """Imports of a cornea model's module, and names of a model's class, outside ``cornea``."""
+    models = cornea_models(root)
+    classes = set().union(*models.values()) if models else set()
+    problems = []
+    for module, path in sorted(project_modules(root).items()):
+        if module == CORNEA or module.startswith(CORNEA + "."):
+            continue
+        for name in sorted(graph[module] & set(models)):
+            problems.append(f"{module} imports {name}, a cornea model (use the registry)")
+        named = {node.id for node in ast.walk(ast.parse(path.read_text()))
+                 if isinstance(node, ast.Name)}
+        named |= {alias.name for node in ast.walk(ast.parse(path.read_text()))
+                  if isinstance(node, ast.ImportFrom) for alias in node.names}
+        for cls in sorted(named & classes):
+            problems.append(f"{module} names {cls}, a cornea model's class")
+    return problems
+
+
 def check(root: Path) -> list[str]:
     """Every problem of the import structure of the project under ``root``."""
     graph = import_graph(root)
     return ([f"import loop: {' <-> '.join(c)}" for c in import_cycles(graph)]
-            + layer_violations(graph) + rule_violations(graph))
+            + layer_violations(graph) + rule_violations(graph)
+            + cornea_violations(root, graph))
 
 
 # -- the project ---------------------------------------------------------------------------------
@@ -157,6 +198,18 @@ def test_the_project_has_no_import_loop_and_no_upward_import():
     graph = import_graph(REPO)
     assert len(graph) > 30 and "api.cli" in graph and "airpuff_core.kernels.mfpm" in graph
     assert check(REPO) == []
+
+
+def test_the_cornea_models_are_the_registrys_and_only_cornea_knows_their_classes():
+    from airpuff_core.cornea.build import MODELS
+    from airpuff_core.cornea.registry import CORNEAS
+
+    models = cornea_models(REPO)
+    assert set(models) == {"airpuff_core.cornea.membrane", "airpuff_core.cornea.kirchhoff",
+                           "airpuff_core.cornea.mindlin"}
+    assert {cls.__name__ for cls in MODELS.values()} == set().union(*models.values())
+    assert list(MODELS) == list(CORNEAS)
+    assert cornea_violations(REPO, import_graph(REPO)) == []
 
 
 def test_a_planted_upward_import_and_loop_in_a_copy_of_the_project_are_found(tmp_path):
@@ -172,12 +225,18 @@ def test_a_planted_upward_import_and_loop_in_a_copy_of_the_project_are_found(tmp
         fh.write("\n\ndef _planted():\n    from . import routes\n    return routes\n")
     with open(tmp_path / "api" / "runner.py", "a") as fh:  # a second submitter of points
         fh.write("\n\ndef _planted():\n    from sweep.worker import compute_point\n")
+    with open(tmp_path / "airpuff_core" / "coupling.py", "a") as fh:  # a model past the registry
+        fh.write("\n\ndef _planted():\n    from .cornea.mindlin import MindlinShell\n"
+                 "    return MindlinShell\n")
     problems = check(tmp_path)
     assert "api.pages imports api.routes: the pages use the jobs layer, api.jobs" in problems
     assert "api.runner imports sweep.worker: only the sweep engine submits points" in problems
     assert "sweep.grid imports api.cli, a higher layer" in problems, problems
     assert any(p.startswith("import loop: ") and "sweep.storage" in p and "sweep.worker" in p
                for p in problems), problems
+    assert ("airpuff_core.coupling imports airpuff_core.cornea.mindlin, a cornea model (use the "
+            "registry)") in problems, problems
+    assert "airpuff_core.coupling names MindlinShell, a cornea model's class" in problems, problems
 
 
 # -- the checker itself, on a tiny synthetic project ---------------------------------------------
