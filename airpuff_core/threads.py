@@ -11,10 +11,9 @@ otherwise; a sweep's points run on one thread each (``sweep.worker``), since the
 keeps every core busy with a point.
 
 Threads pay only with an OpenMP or TBB threading layer: Numba's fallback ``workqueue`` layer
-made a paper-resolution run 3.4 times slower with two threads (measured), so without one of
-those layers a run keeps to one thread.  Even on one thread the kernels ran about twice as slow
-under ``workqueue`` (a coarse run 3.5-3.7 s against 1.6-1.7 s, measured): the OpenMP layer needs
-libgomp (``libgomp1``), which the Docker image installs.
+slows a run down with two threads and even on one (docs/performance.md, "Threads"), so without
+one of those layers a run keeps to one thread.  The OpenMP layer needs libgomp (``libgomp1``),
+which the Docker image installs.
 """
 
 from __future__ import annotations

@@ -17,10 +17,10 @@ operator applications.  s = 1 is one forward-Euler step.
 P_s has negative lobes down to about -0.45 inside that interval.  In the fluid step the
 hyperviscous increment is added to the explicit viscous and pressure increments of the same
 state, and a factor near -0.45 plus a viscous factor near -0.7 (mu at its time-step limit)
-leaves the unit circle: measured, mu = 2.5 Pa s at coarse resolution blows up to c = 36 m/s with
-one super-step per fluid step.  The step is therefore covered by K >= 2 equal super-steps
-whenever s >= 2, so the factor P_s^K is never below -0.125 (K = 3, s = 2), while forward
-Euler's sub-steps (s = 1, the former scheme) stay no lower than 1 - HV_SAFETY / HV_MARGIN.
+leaves the unit circle (a run at mu = 2.5 Pa s blows up with one super-step per fluid step:
+docs/model.md section 4).  The step is therefore covered by K >= 2 equal super-steps whenever
+s >= 2, so the factor P_s^K is never below -0.125 (K = 3, s = 2), while forward Euler's sub-steps
+(s = 1) stay no lower than 1 - HV_SAFETY / HV_MARGIN.
 ``legendre_plan`` picks the cheapest such (K, s); it never needs more operator applications
 than forward-Euler sub-cycling.
 """

@@ -123,8 +123,8 @@ def _norm1_sym5(a00, a10, a11, a20, a21, a22, a30, a31, a32, a33, a40, a41, a42,
 
 
 # The one floating-point liberty the kernels take: a * b + c may be one fused multiply-add (one
-# rounding instead of two), which cuts the pair loops' instruction count (with two fields per
-# pass, the MFPM build 2.8 -> 3.3 M evaluations per core-second, measured, docs/performance.md).
+# rounding instead of two), which cuts the pair loops' instruction count (docs/performance.md,
+# "Fused multiply-adds, and two fields per pass").
 # The choice is made per expression, so every compiled copy of a loop rounds alike.  No
 # reassociation: that let the compiler vectorise sums in an order that differed between compiled
 # copies (bits then differed between a Dask worker and its client); no 'nnan': the
@@ -163,18 +163,18 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     No pair weight is stored across calls: in the solver each operator is applied once, right
     after its build.  Within a node the weighted monomials W_ij P_j are kept in scratch rows,
     for the moment sums and every field; two fields share a pass over them.  For speed
-    (measured, see docs/performance.md): each
+    (docs/performance.md): each
     node's x, y, h, 1/h are packed side by side, so a neighbour costs one cache line; the
     support's pairs are written into contiguous scratch rows in the distance pass itself (a
     branch-free compaction); the scratch rows are one block.
 
     The nodes are built in ``n_chunks`` contiguous chunks (``threads.chunks``) by a parallel
     loop (one chunk without it); a node's results depend on its own support only.  The
-    arithmetic is IEEE with fused multiply-adds only (``FUSED_MULTIPLY_ADD``): with reassociated
-    sums the compiler vectorised the reductions differently in each compiled copy of the loop
-    (serial or parallel, fresh or from the Numba cache), and the last bits of the consistent
-    Laplacian differed between a run in a Dask worker and the same run in its client
-    (measured).  Every sum runs in the order of the pairs, so the results are the same bit for
+    arithmetic is IEEE with fused multiply-adds only (``FUSED_MULTIPLY_ADD``): reassociated sums
+    would let the compiler vectorise the reductions differently in each compiled copy of the
+    loop (serial or parallel, fresh or from the Numba cache), and a run in a Dask worker could
+    then differ in its last bits from the same run in its client (docs/performance.md,
+    "Threads").  Every sum runs in the order of the pairs, so the results are the same bit for
     bit for any chunks, threads, process or cache (tests/core/test_threads.py).
 
     With ``store_laplacian`` (all nodes) the support's pairs and the Brookshaw coefficients
@@ -372,7 +372,7 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                 lap_c[p0 + k] = lap_b[p0 + k] - (mx * gx + my * gy)
         # 4. each field's moment vector b, then D f = S A^-1 b; two fields share one pass over
         # the pairs: each sum b_a is a chain of dependent additions, and ten chains instead of
-        # five keep the floating-point units busy (measured, docs/performance.md)
+        # five keep the floating-point units busy (docs/performance.md)
         inverse = (i00, i10, i11, i20, i21, i22, i30, i31, i32, i33, i40, i41, i42, i43, i44)
         for f in range(0, n_fields - 1, 2):
             g = f + 1
@@ -399,8 +399,8 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                 c4 += pw4[k] * dg
             _store_derivatives(out, f, i, n_rows, inv_s, inverse, b0, b1, b2, b3, b4)
             _store_derivatives(out, g, i, n_rows, inv_s, inverse, c0, c1, c2, c3, c4)
-        # an odd last field: the pass above for one field (pairing it with itself made the
-        # one-field build of the pressure gradient 7 % slower, measured)
+        # an odd last field: the pass above for one field, cheaper than pairing it with itself
+        # (docs/performance.md, "What the code's comments used to carry")
         if n_fields % 2 == 1:
             f = n_fields - 1
             fi = fields[f, i]
@@ -514,8 +514,8 @@ def pair_flow(rho, vx, vy, start, nbr, sign, count, coef, coef_density, n_chunks
     ``coef_density`` is None: each field's sum is the one ``brookshaw_laplacian`` forms.  A
     separate density coefficient is the first pass of K^* L K on the velocity with L^3 on the
     density (one pass instead of two); Numba compiles the None case apart, without the second
-    array (loading the same coefficients twice cost a quarter more, measured).  Multiplying by
-    the sign, not branching on it, makes the pass about 1.5 times faster (measured).
+    array, and multiplies by the sign instead of branching on it, both for speed
+    (docs/performance.md, "What the code's comments used to carry").
     Each node's sums are its own, so the ``n_chunks`` contiguous chunks of nodes
     (``threads.chunks``) run in parallel and give the same result for any number."""
     n = rho.shape[0]
