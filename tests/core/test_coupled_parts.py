@@ -51,16 +51,22 @@ def test_dirichlet_neumann_takes_two_iterations_at_least_and_fails_on_divergence
 
 
 def test_the_rigid_globe_does_nothing():
-    y, vx, vy = np.arange(5.0), np.ones(5), -np.ones(5)
+    params = RunParams()
+    model = CoupledModel(params)
+    n = model.chamber.n
+    y, vx, vy = np.arange(float(n)), np.ones(n), -np.ones(n)
     before = (y.copy(), vx.copy(), vy.copy())
-    globe = RigidGlobe(2133.152)
+    globe = RigidGlobe(params.si(), params.geometry, model.chamber)
     globe.start(1.0, 1.0)
     globe.impose(y, y, vx, vy, 10.0, 1e-6, y, vx, vy)
-    globe.commit(1.0, 1.0, 1e-6, 10.0)
+    globe.commit(1.0, 1.0, 1e-6, 10.0, np.full(n, 1000.0))
     for a, b in zip((y, vx, vy), before):
         np.testing.assert_array_equal(a, b)
-    assert globe.work(np.ones(5), 2 * np.ones(5), 10.0) == 0.0
-    assert globe.volume_change() == 0.0 and globe.pressure() == 2133.152
+    assert globe.work(np.ones(n), 2 * np.ones(n), 10.0) == 0.0
+    assert globe.volume_change() == 0.0 and globe.pressure() == params.si().p0_Pa
+    # the fluid at its reference density presses on the walls with the IOP
+    assert globe.wall_pressure(np.full(n, 1000.0), 10.0) == pytest.approx(params.si().p0_Pa,
+                                                                           rel=1e-14)
 
 
 def test_a_run_with_the_rigid_globe_never_moves_a_wall_node():
