@@ -28,6 +28,7 @@ from fastapi.security import HTTPBearer
 from pydantic import BaseModel, ValidationError
 from starlette.datastructures import Headers
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import compile_path
 
 from airpuff_core import __version__
 from airpuff_core.params import PARAMETERS
@@ -176,8 +177,8 @@ class RequestGuard:
     3. a body's content type: JSON for the API, ``application/x-www-form-urlencoded`` for the
        pages' forms (``pages.FORM_PATHS``); another one gets 415 naming ``content-type``;
     4. the encoding: a charset other than UTF-8 gets 415, a JSON body in UTF-16/32 422;
-    5. a JSON body of a path in ``bodies`` (path -> its request model): unknown keys, then the
-       model, in a worker thread (``check_json_body``): else 422, at most ``MAX_ERRORS`` listed.
+    5. a JSON body of a path in ``bodies`` (route path -> its request model): unknown keys, then
+       the model, in a worker thread (``check_json_body``): else 422, at most ``MAX_ERRORS`` listed.
 
     The body is read here (at most ``limit`` bytes, after the credentials) and handed on unchanged.
     The token and cookie comparisons are ``api.auth``'s.  Every answer carries
@@ -188,7 +189,14 @@ class RequestGuard:
                  bodies: dict[str, type[BaseModel]]):
         self.app, self.limit = app, limit
         self.token = token or None
-        self.hosts, self.bodies = hosts, bodies
+        self.hosts = hosts
+        self.bodies = [(compile_path(path)[0], model) for path, model in bodies.items()]
+
+    def _body_model(self, scope) -> type[BaseModel] | None:
+        """The request model of a POST to this path, if it has one in ``bodies``."""
+        if scope["method"] != "POST":
+            return None
+        return next((model for regex, model in self.bodies if regex.match(scope["path"])), None)
 
     def _refusal(self, scope) -> Response | None:
         """The answer to a request without the credentials its path needs; None if it may go on."""
@@ -242,7 +250,7 @@ class RequestGuard:
             if not message.get("more_body", False):
                 break
         answer = self._check_body(headers, bytes(body), form=scope["path"] in pages.FORM_PATHS)
-        model = self.bodies.get(scope["path"]) if scope["method"] == "POST" else None
+        model = self._body_model(scope)
         if answer is None and model is not None and body:
             answer = await anyio.to_thread.run_sync(check_json_body, model, bytes(body))
         if answer is not None:
@@ -369,7 +377,10 @@ def create_app(settings: Settings) -> FastAPI:
     app.state.runner = None
     app.add_middleware(RequestGuard, limit=settings.max_body_bytes, token=settings.token,
                        hosts=HostAllowList(settings.bind_address, settings.allowed_hosts),
-                       bodies={"/sweeps": SweepRequest, "/identify": schemas.IdentifyRequest})
+                       bodies={"/sweeps": SweepRequest, "/identify": schemas.IdentifyRequest,
+                               "/sweeps/{job_id}/corrections": corrections.CorrectionRequest,
+                               "/sweeps/{job_id}/corrections/{cid}/apply":
+                                   corrections.ApplyRequest})
 
     @app.exception_handler(RequestValidationError)
     async def on_validation_error(request: Request, exc: RequestValidationError):

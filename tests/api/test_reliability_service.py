@@ -97,8 +97,14 @@ def test_unknown_keys_are_refused_early_and_the_errors_capped_while_health_answe
         assert "59980 more errors" in detail[-1]["msg"] and "60000 in all" in detail[-1]["msg"]
     assert max(health_latency) < 1.0, health_latency  # a liveness bound, 6x below the stall
 
-    # many errors of known keys are capped the same way, and nothing was stored
+    # many errors of known keys are capped the same way, every JSON body of the API is checked
+    # so, and nothing was stored
     with open_server.client() as c:
+        for path in ("/identify", f"/sweeps/{'0' * 32}/corrections",
+                     f"/sweeps/{'0' * 32}/corrections/c1/apply"):
+            r = c.post(path, content=body, headers={"content-type": "application/json"})
+            assert r.status_code == 422 and len(r.json()["detail"]) == MAX_ERRORS + 1, \
+                (path, r.status_code, len(r.content))
         r = c.post("/sweeps", json={"E0": [-1.0 - i for i in range(5000)]})
         assert r.status_code == 422 and len(r.json()["detail"]) == MAX_ERRORS + 1, r.text[:300]
         assert r.json()["detail"][0]["field"] == "E0" and "(0, 50] MPa" in \
