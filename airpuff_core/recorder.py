@@ -23,6 +23,7 @@ import numpy as np
 
 from .apex_budget import apex_budget
 from .coupling import CoupledModel
+from .dataset import decodable_ms
 from .energy import EnergyBudget
 from .fluid import KAPPA
 from .metrics import compute_metrics
@@ -183,7 +184,9 @@ class Recorder:
             np.array(self.step_budget))
         diagnostics = self._diagnostics(model, wall_s)
         diagnostics.update(extra)
-        return RunResult(params=model.params, time=self.out_t * 1e3, histories=hist,
+        # the output times as the run's netCDF stores them (``decodable_ms``), so that the result
+        # in memory and its file agree bit for bit
+        return RunResult(params=model.params, time=decodable_ms(self.out_t * 1e3), histories=hist,
                          snapshot_time=np.array([self.snapshot_t[lbl] for lbl in SNAPSHOT_LABELS]),
                          snapshots=self._snapshot_arrays(), metrics=metrics, metric_notes=notes,
                          diagnostics=diagnostics)
