@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= demo_out
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.numba_cache
 
-.PHONY: venv demo test bench clean
+.PHONY: venv demo test bench image clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -21,6 +21,12 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests
+
+# The Docker image airpuff:local (docker/build.sh, README.md "Running on a cluster").  Where the
+# package index is reached only through the host's network and a TLS proxy:
+#   make image IMAGE_BUILD_ARGS="--network host --ca-bundle /path/to/ca-bundle.crt"
+image:
+	docker/build.sh $(IMAGE_BUILD_ARGS)
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run_all

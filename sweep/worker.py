@@ -16,6 +16,7 @@ accounting behind the cold/warm start figures of docs/performance.md).
 from __future__ import annotations
 
 import os
+import socket
 import tempfile
 import time
 from pathlib import Path
@@ -79,6 +80,9 @@ def _simulate_point(params: RunParams, key: str, store_ok) -> PointRecord:
         wall = time.perf_counter() - t0
         ds.attrs["sweep_point_key"] = key
         ds.attrs["wall_time_s"] = wall
+        # Which machine (container) computed the point: a deployment's check that the workers,
+        # not the service, ran it (tests/deploy/test_docker.py).
+        ds.attrs["computed_on_host"] = socket.gethostname()
         store_ok(ds)
         record = PointRecord(key=key, status="ok", message=notes_message(result.metric_notes),
                              metrics=json_safe_metrics(result.metrics), wall_s=wall,
