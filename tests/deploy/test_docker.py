@@ -119,7 +119,7 @@ class Stack:
         health: dict = {}
         while time.monotonic() - t0 < START_TIMEOUT:
             try:
-                health = httpx.get(f"{self.url()}/health", timeout=5).json()
+                health = httpx.get(f"{self.url()}/health", timeout=5, headers=self.headers).json()
                 if health.get("runner") == "ready" and health.get("workers") == workers:
                     return time.monotonic() - t0
                 assert health.get("runner") != "failed", health
@@ -192,7 +192,7 @@ def test_the_numba_cache_of_the_image_is_warm(stack):
             "from sweep.worker import compute_point; "
             f"p = RunParams.from_dict({json.dumps(POINT)}); "
             "r = [compute_point(p)[0] for _ in range(2)]; "
-            "print(json.dumps([{k: x[k] for k in ('wall_s', 'jit_compiled', 'jit_loaded', "
+            "print(json.dumps([{k: getattr(x, k) for k in ('wall_s', 'jit_compiled', 'jit_loaded', "
             "'first_in_process', 'status')} for x in r]))")
     first, second = json.loads(run("docker", "exec", worker, "python", "-c", code,
                                    timeout=300).stdout.splitlines()[-1])
