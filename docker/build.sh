@@ -58,7 +58,7 @@ if [ -z "$base" ]; then
     fi
 fi
 
-build_args=(--build-arg "PYTHON_IMAGE=$base" -f docker/Dockerfile -t "$tag")
+build_args=(--force-rm --build-arg "PYTHON_IMAGE=$base" -f docker/Dockerfile -t "$tag")
 [ -n "$network" ] && build_args+=(--network "$network")
 
 # The context: the files the Dockerfile copies, plus the CA bundle as pip-ca.crt if given.
