@@ -178,6 +178,23 @@ def _isotropic_rings_for(target, R, r_post, alpha0):
 
 def build_chamber(geometry, layout, resolution, R, r_post, alpha0) -> Chamber:
     """Reference chamber in SI units (R, r_post in m, alpha0 in rad)."""
+    x, y, kind, h = _nodes(geometry, layout, resolution, R, r_post, alpha0)
+    cornea = np.flatnonzero(kind == CORNEA)
+    phi = np.arctan2(x[cornea], y[cornea])
+    order = np.argsort(phi)
+    cornea, phi = cornea[order], phi[order]
+    area_, vol = _areas_and_volumes(geometry, x, y, h, R, r_post, alpha0)
+    return Chamber(x, y, kind, h, area_, vol, cornea, phi)
+
+
+def smallest_spacing(geometry, layout, resolution, R, r_post, alpha0) -> float:
+    """h_min [m]: the smallest node spacing of the chamber ``build_chamber`` makes (without
+    computing its areas)."""
+    return float(_nodes(geometry, layout, resolution, R, r_post, alpha0)[3].min())
+
+
+def _nodes(geometry, layout, resolution, R, r_post, alpha0):
+    """(x, y, kind, h) of the chamber's nodes."""
     if geometry == "sector":
         if layout == "polar":
             n_rho, n_phi = POLAR_LATTICE[resolution]
@@ -191,12 +208,7 @@ def build_chamber(geometry, layout, resolution, R, r_post, alpha0) -> Chamber:
         area = exact_area("cap", R, r_post, alpha0)
         spacing = math.sqrt(area / TARGET_NODES[resolution])
         x, y, kind, h = _cap_isotropic(R, alpha0, spacing)
-    cornea = np.flatnonzero(kind == CORNEA)
-    phi = np.arctan2(x[cornea], y[cornea])
-    order = np.argsort(phi)
-    cornea, phi = cornea[order], phi[order]
-    area_, vol = _areas_and_volumes(geometry, x, y, h, R, r_post, alpha0)
-    return Chamber(x, y, kind, h, area_, vol, cornea, phi)
+    return x, y, kind, h
 
 
 def chamber_volume(geometry, xc, yc, r_post, alpha0) -> float:

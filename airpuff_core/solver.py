@@ -14,6 +14,7 @@ from __future__ import annotations
 import time as _time
 
 from .blowup import BlowUpCheck
+from .budget import check_step_budget
 from .coupling import CoupledModel
 from .energy import EnergyBudget
 from .params import RunParams
@@ -31,13 +32,14 @@ def simulate(params: RunParams, progress=None, reuse: bool = True, threads=None)
     ``threads``: how many threads the kernels use (``threads.py``; default Numba's setting, every
     core it sees unless changed); the result does not depend on it.  Raises SimulationError on blow-up, non-convergent
     coupling or an ill-conditioned operator (the message names the time), ParameterError on a
-    bad ``threads``.
+    bad ``threads`` or a run estimated above the step budget (``budget.check_step_budget``).
     """
     with solver_threads(threads):
         return _simulate(params, progress, reuse)
 
 
 def _simulate(params, progress, reuse):
+    check_step_budget(params)  # a run estimated above the budget never starts
     wall0 = _time.monotonic()
     model = CoupledModel(params, reuse)
     budget = EnergyBudget(model)

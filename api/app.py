@@ -33,6 +33,7 @@ from starlette.routing import compile_path
 from airpuff_core import __version__
 from airpuff_core.params import PARAMETERS
 from airpuff_core.provenance import model_version
+from sweep.storage import NO_SPACE, disk_full
 
 from . import auth, corrections, db, pages, routes, schemas
 from .hosts import HostAllowList
@@ -403,6 +404,11 @@ def create_app(settings: Settings) -> FastAPI:
     @app.exception_handler(sqlite3.OperationalError)
     async def on_db_busy(request: Request, exc: sqlite3.OperationalError):
         log.error("database error: %s", exc)
+        if disk_full(exc):
+            return JSONResponse({"detail": f"{NO_SPACE} on the server: the job database cannot "
+                                           "take the change; retry once space is freed in its "
+                                           "data directory"}, 507,
+                                headers={"Retry-After": "60"})
         return JSONResponse({"detail": "the job database is busy; retry shortly"}, 503,
                             headers={"Retry-After": "2"})
 

@@ -24,7 +24,7 @@ from typing import Any, Iterable, Iterator
 
 from .status import ENDED_JOB_STATUSES, JOB_STATUSES, POINT_RESULTS, POINT_STATUSES, sql_list
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 BUSY_TIMEOUT_MS = 30_000
 
 # Columns of ``points`` up to schema version 2 that nothing read (a point's parameters and wall
@@ -53,7 +53,8 @@ CREATE TABLE IF NOT EXISTS jobs (
     started_at   REAL,
     finished_at  REAL,
     error        TEXT,
-    retry_failed INTEGER NOT NULL DEFAULT 0
+    retry_failed INTEGER NOT NULL DEFAULT 0,
+    owner        TEXT
 );
 {POINTS_TABLE};
 CREATE TABLE IF NOT EXISTS job_points (
@@ -95,10 +96,17 @@ def write(con: sqlite3.Connection) -> Iterator[sqlite3.Connection]:
     try:
         yield con
     except BaseException:
-        con.execute("ROLLBACK")
+        # SQLite may have rolled back already (it does on a full disk, SQLITE_FULL): a second
+        # ROLLBACK would raise and hide the cause
+        if con.in_transaction:
+            con.execute("ROLLBACK")
         raise
-    else:
+    try:
         con.execute("COMMIT")
+    except BaseException:  # e.g. a full disk: never keep the write lock of a failed commit
+        if con.in_transaction:
+            con.execute("ROLLBACK")
+        raise
 
 
 SQLITE_HEADER = b"SQLite format 3\x00"  # the first 16 bytes of every SQLite database file
@@ -155,6 +163,8 @@ def init(path: str | Path) -> None:
                     con.execute(stmt)
             if "retry_failed" not in _columns(con, "jobs"):  # a database of schema version 1
                 con.execute("ALTER TABLE jobs ADD COLUMN retry_failed INTEGER NOT NULL DEFAULT 0")
+            if "owner" not in _columns(con, "jobs"):  # schema version 3 or older
+                con.execute("ALTER TABLE jobs ADD COLUMN owner TEXT")
             if set(DROPPED_POINT_COLUMNS) & _columns(con, "points"):  # schema version 1 or 2
                 _rebuild_points_table(con)
             con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
@@ -195,17 +205,50 @@ def iso(t: float | None) -> str | None:
 
 # -- jobs ------------------------------------------------------------------------------------
 
+class PendingLimit(Exception):
+    """A new job would take the points waiting above a limit: ``scope`` is ``"server"`` (all
+    clients) or ``"client"`` (its owner); ``pending`` the points waiting now, ``limit`` the
+    limit, ``asked`` the job's points."""
+
+    def __init__(self, scope: str, pending: int, asked: int, limit: int):
+        self.scope, self.pending, self.asked, self.limit = scope, pending, asked, limit
+        super().__init__(f"{pending} + {asked} points above the {scope} limit of {limit}")
+
+
+PENDING_POINTS = ("SELECT COUNT(*) FROM job_points jp JOIN jobs j ON j.id = jp.job_id "
+                  "WHERE jp.status = 'pending' AND j.status IN ('queued', 'running')")
+
+
+def pending_points(con, owner: str | None = None) -> int:
+    """Points waiting in queued or running jobs (of ``owner`` only, if given)."""
+    if owner is None:
+        return con.execute(PENDING_POINTS).fetchone()[0]
+    return con.execute(PENDING_POINTS + " AND j.owner = ?", (owner,)).fetchone()[0]
+
+
 def insert_job(con, job_id: str, spec: dict, points: Iterable[tuple[str, float, float, float,
                                                                    float]],
-               retry_failed: bool = False) -> None:
+               retry_failed: bool = False, owner: str | None = None,
+               max_pending: int | None = None, max_pending_owner: int | None = None) -> None:
     """Store a new queued job and its grid: points are (key, E0, IOP, thickness, pmax) in
-    index order.  ``retry_failed``: compute again points stored as failed by the model."""
+    index order.  ``retry_failed``: compute again points stored as failed by the model;
+    ``owner``: who asked (the client's address).  Raises ``PendingLimit`` if the points waiting
+    would exceed ``max_pending`` (all jobs) or ``max_pending_owner`` (the owner's jobs); the
+    counts and the insert are one transaction, so concurrent requests cannot both slip in."""
     rows = [(job_id, i, *p) for i, p in enumerate(points)]
     with write(con):
-        con.execute("INSERT INTO jobs (id, status, spec_json, n_points, created_at, retry_failed) "
-                    "VALUES (?, 'queued', ?, ?, ?, ?)",
+        if max_pending is not None:
+            waiting = pending_points(con)
+            if waiting + len(rows) > max_pending:
+                raise PendingLimit("server", waiting, len(rows), max_pending)
+        if max_pending_owner is not None:
+            waiting = pending_points(con, owner)
+            if waiting + len(rows) > max_pending_owner:
+                raise PendingLimit("client", waiting, len(rows), max_pending_owner)
+        con.execute("INSERT INTO jobs (id, status, spec_json, n_points, created_at, retry_failed, "
+                    "owner) VALUES (?, 'queued', ?, ?, ?, ?, ?)",
                     (job_id, json.dumps(spec, sort_keys=True), len(rows), now(),
-                     int(bool(retry_failed))))
+                     int(bool(retry_failed)), owner))
         con.executemany("INSERT INTO job_points (job_id, idx, key, E0, IOP, thickness, pmax) "
                         "VALUES (?, ?, ?, ?, ?, ?, ?)", rows)
 
@@ -339,11 +382,12 @@ def reopen_job_points(con, job_id: str, keys: Iterable[str]) -> None:
         con.executemany("UPDATE points SET status = 'pending' WHERE key = ?", [(k,) for k in keys])
 
 
-def needed_point_keys(con) -> set[str]:
-    """Keys of the points that a queued or running job still waits for."""
-    return {r[0] for r in con.execute(
-        "SELECT DISTINCT jp.key FROM job_points jp JOIN jobs j ON j.id = jp.job_id "
-        "WHERE jp.status = 'pending' AND j.status IN ('queued', 'running')")}
+def point_needed(con, key: str) -> bool:
+    """Whether a queued or running job still waits for the point ``key``."""
+    return con.execute(
+        "SELECT 1 FROM job_points jp JOIN jobs j ON j.id = jp.job_id WHERE jp.key = ? AND "
+        "jp.status = 'pending' AND j.status IN ('queued', 'running') LIMIT 1",
+        (key,)).fetchone() is not None
 
 
 def cancel_points_of_cancelled_jobs(con) -> None:

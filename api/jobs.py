@@ -47,11 +47,31 @@ def get_db(request: Request) -> Iterator[sqlite3.Connection]:
         con.close()
 
 
-def create_job(con: sqlite3.Connection, settings: Settings,
-               values: dict[str, Any]) -> tuple[str, int]:
+class QueueFull(Exception):
+    """A job refused because too many points wait: ``status_code`` 429 (this client's limit)
+    or 503 (the server's); ``str()`` says the counts and the limits."""
+
+    def __init__(self, err: db.PendingLimit, settings: Settings):
+        self.status_code = 429 if err.scope == "client" else 503
+        self.limits = {"max_pending_points": settings.max_pending_points,
+                       "max_pending_per_client": settings.max_pending_per_client,
+                       "pending": err.pending, "asked": err.asked}
+        whose = "from this client" if err.scope == "client" else "in all"
+        option = "--max-pending-per-client" if err.scope == "client" else "--max-pending-points"
+        super().__init__(
+            f"too many points waiting: {err.pending} {whose} and this job asks for {err.asked}; "
+            f"the limit is {err.limit} ({option}; per client "
+            f"{settings.max_pending_per_client}, in all {settings.max_pending_points}); retry "
+            "when earlier jobs have progressed, or cancel some")
+
+
+def create_job(con: sqlite3.Connection, settings: Settings, values: dict[str, Any],
+               owner: str | None = None) -> tuple[str, int]:
     """Store a queued job for the request ``values`` (a ``SweepRequest`` validated by the schema,
-    as a dict); returns (job id, number of points).  Raises a 422 if the grid is larger than
-    ``settings.max_points`` or the solver rejects a combination of parameters."""
+    as a dict) of the client ``owner`` (its address); returns (job id, number of points).
+    Raises a 422 if the grid is larger than ``settings.max_points`` or the solver rejects a
+    combination of parameters, ``QueueFull`` if the points waiting would exceed
+    ``settings.max_pending_points`` or, for this owner, ``settings.max_pending_per_client``."""
     values = dict(values)
     retry_failed = values.pop("retry_failed", False)
     axes = {name: values.pop(name) for name in SWEPT}
@@ -66,7 +86,11 @@ def create_job(con: sqlite3.Connection, settings: Settings,
         raise problem_422(["body", err.name], err.name, str(err)) from None
     job_id = uuid.uuid4().hex
     rows = [(point_key(p), p.E0, p.IOP, p.thickness, p.pmax) for p in points]
-    db.insert_job(con, job_id, spec.to_dict(), rows, retry_failed)
+    try:
+        db.insert_job(con, job_id, spec.to_dict(), rows, retry_failed, owner,
+                      settings.max_pending_points, settings.max_pending_per_client)
+    except db.PendingLimit as err:
+        raise QueueFull(err, settings) from None
     return job_id, len(rows)
 
 

@@ -211,7 +211,8 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
                                      "</p>", 403)
         raw = (await request.body()).decode("utf-8", "replace")
         form = {k: v for k, v in parse_qsl(raw, keep_blank_values=True)}
-        outcome = await run_in_threadpool(_submit, form)
+        outcome = await run_in_threadpool(_submit, form,
+                                          request.client.host if request.client else None)
         if isinstance(outcome, str):
             runner = request.app.state.runner
             if runner is not None:
@@ -221,7 +222,7 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
         return html("new sweep", "<h1>New sweep</h1>"
                     + sweep_form.render(values, outcome, settings.max_points), 422)
 
-    def _submit(form: dict[str, str]) -> str | dict[str, list[str]]:
+    def _submit(form: dict[str, str], owner: str | None) -> str | dict[str, list[str]]:
         """The new job's id, or the errors by field (the messages of POST /sweeps)."""
         # Axes with a syntax error are left out of the body (they take their defaults there), so
         # that the schema still reports every other field at once.
@@ -235,9 +236,11 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
             if not errors:
                 try:
                     with connect() as con:
-                        return jobs.create_job(con, settings, values)[0]
+                        return jobs.create_job(con, settings, values, owner)[0]
                 except RequestValidationError as exc:
                     problems = [describe(e) for e in exc.errors()]
+                except jobs.QueueFull as exc:
+                    errors.setdefault(sweep_form.GENERAL, []).append(str(exc))
         for p in problems:
             field = p["field"] if p["field"] in SweepRequest.model_fields else sweep_form.GENERAL
             errors.setdefault(field, []).append(p["msg"])

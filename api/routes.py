@@ -54,7 +54,13 @@ def make_submit(SweepRequest):  # noqa: N803 - a model class
 
     def submit(body: SweepRequest, response: Response, request: Request,  # type: ignore[valid-type]
                con: sqlite3.Connection = Depends(get_db)):
-        job_id, n_points = create_job(con, request.app.state.settings, body.model_dump())
+        owner = request.client.host if request.client else None
+        try:
+            job_id, n_points = create_job(con, request.app.state.settings, body.model_dump(),
+                                          owner)
+        except jobs.QueueFull as err:
+            return JSONResponse({"detail": str(err), "limits": err.limits}, err.status_code,
+                                headers={"Retry-After": "30"})
         runner = request.app.state.runner
         if runner is not None:
             runner.wake()
@@ -175,7 +181,11 @@ def build_router(settings: Settings, SweepRequest, auth) -> APIRouter:  # noqa: 
                 "and workers only with the token, when one is set)")
     add("/sweeps", make_submit(SweepRequest), methods=["POST"], status_code=202,
         response_model=schemas.Submitted, tags=["sweeps"], dependencies=deps,
-        responses={**invalid, **unauthorized},
+        responses={**invalid, **unauthorized,
+                   429: {"model": schemas.QueueProblem,
+                         "description": "this client has too many points waiting"},
+                   503: {"model": schemas.QueueProblem,
+                         "description": "the server has too many points waiting"}},
         summary="Submit a sweep; answers 202 with the job id and a Location header")
     add("/sweeps", list_sweeps, methods=["GET"], response_model=schemas.JobList, tags=["sweeps"],
         dependencies=deps, responses={**invalid, **unauthorized},

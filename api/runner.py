@@ -47,12 +47,17 @@ import uuid
 from pathlib import Path
 
 from sweep.engine import MAX_DAMAGED_RECOMPUTES, PointEngine, stored_record
-from sweep.storage import INFRASTRUCTURE_RETRIES, one_line_message
+from sweep.storage import INFRASTRUCTURE_RETRIES, NO_SPACE, disk_full, one_line_message
 
 from . import db
 from .settings import Settings
 
 log = logging.getLogger("airpuff.runner")
+
+# s between two tries to write a job's dataset on a full disk
+COMBINE_RETRY_S = 5.0
+# s a local cluster may be without any worker before it is replaced
+LOST_CLUSTER_S = 10.0
 
 __all__ = ["Runner", "RunnerLocked", "acquire_runner_lock", "INFRASTRUCTURE_RETRIES"]
 
@@ -87,6 +92,12 @@ class Runner:
         self.client = None
         self.engine: PointEngine | None = None
         self.specs: dict[str, object] = {}  # id of a running job -> its SweepSpec
+        # results collected but not yet in the database (it could not be written): kept and
+        # written again on each pass, their points not submitted again meanwhile
+        self.unrecorded: list[tuple] = []
+        self.disk_error: str | None = None  # why results or datasets wait for room
+        self._combine_after: dict[str, float] = {}  # job id -> next try of a combine [monotonic]
+        self._no_workers_since: float | None = None  # when a local cluster lost its last worker
         self._warmed: set[tuple] = set()
         self._last_info = 0.0
         self._n_cancelled = -1
@@ -119,10 +130,12 @@ class Runner:
             while not self._stop.is_set():
                 try:
                     self._tick()
-                    self.error = None  # recovered (or never failed)
+                    # recovered (or never failed), unless results wait for room on the disk
+                    self.error = self.engine.storage_error or self.disk_error
                 except Exception as err:  # noqa: BLE001 - keep serving; the error is reported
                     log.exception("runner loop error")
-                    self.error = one_line_message(f"{type(err).__name__}: {err}")
+                    cause = f"{NO_SPACE}: " if disk_full(err) else ""
+                    self.error = one_line_message(f"{cause}{type(err).__name__}: {err}")
                     self._stop.wait(2.0)
                 self._wake.wait(self.settings.poll_interval)
                 self._wake.clear()
@@ -158,7 +171,7 @@ class Runner:
                 self.state = "connecting" if s.scheduler else "starting"
                 self.client = make_client(workers=s.workers, scheduler=s.scheduler)
                 self.engine = PointEngine(
-                    self.client, s.points_dir, retries=s.retries,
+                    self.client, s.points_dir, retries=s.retries, time_limit_s=s.task_time_limit,
                     on_submit=lambda keys: db.upsert_pending_points(self.con, keys,
                                                                     submitted=True))
                 self._update_info(force=True)
@@ -203,6 +216,32 @@ class Runner:
                     self._worker_warnings.add(warning)
                     log.warning(warning)
         self.n_workers = n
+        if n == 0 and not self.settings.scheduler:
+            self._renew_local_cluster(now)
+        else:
+            self._no_workers_since = None
+
+    def _renew_local_cluster(self, now: float) -> None:
+        """A local cluster left without any worker for ``LOST_CLUSTER_S`` (a nanny that closed
+        after its worker was ended, seen with distributed 2026.8) is replaced by a new one; the
+        points in flight are submitted again from the database by ``_feed``."""
+        from sweep.cluster import close_client, make_client
+
+        if self._no_workers_since is None:
+            self._no_workers_since = now
+        if now - self._no_workers_since < LOST_CLUSTER_S:
+            return
+        log.warning("the local cluster has had no worker for %.0f s: starting a new one",
+                    now - self._no_workers_since)
+        old, self.client = self.client, None
+        try:
+            close_client(old)
+        except Exception:  # noqa: BLE001 - it is being replaced
+            log.exception("closing the old Dask client")
+        self.client = make_client(workers=self.settings.workers)
+        self.engine.client = self.client
+        self.engine.tasks.clear()
+        self._no_workers_since = None
 
     # -- one pass -----------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -233,8 +272,8 @@ class Runner:
             return
         self._n_cancelled = n
         db.cancel_points_of_cancelled_jobs(self.con)
-        needed = db.needed_point_keys(self.con)
-        dropped = self.engine.cancel([k for k in self.engine.tasks if k not in needed])
+        dropped = self.engine.cancel([k for k in self.engine.tasks
+                                      if not db.point_needed(self.con, k)])
         if dropped:
             log.info("cancelled %d point task(s) no job needs any more", len(dropped))
 
@@ -263,19 +302,21 @@ class Runner:
         from sweep.storage import point_key
 
         pending = db.pending_job_points(self.con, job_id)
+        # The keys were computed when the job was submitted; they are recomputed here only to
+        # follow a change of the key's definition between versions (a stored job of an older
+        # server), which changes every key: the first one tells.
+        if pending and point_key(spec.point(pending[0]["idx"])) != pending[0]["key"]:
+            for row in pending:
+                db.set_job_point_key(self.con, job_id, row["idx"],
+                                     point_key(spec.point(row["idx"])))
+            pending = db.pending_job_points(self.con, job_id)
         reused, on_disk = [], {}
         for row in pending:
             key = row["key"]
-            if key in self.engine.tasks or key in on_disk:
+            if self.engine.holds(key) or key in on_disk:
                 continue  # already computing for another job (or listed twice)
             found = stored_record(self.settings.points_dir, key, retry_failed)
             if found is None:
-                # The key was computed when the job was submitted; it is recomputed here only
-                # to follow a change of the key's definition between versions (a stored job of
-                # an older server), which the stored file would not match.
-                new_key = point_key(spec.point(row["idx"]))
-                if new_key != key:
-                    db.set_job_point_key(self.con, job_id, row["idx"], new_key)
                 continue
             stored = db.point_row(self.con, key)
             if stored is not None and stored["status"] == found.status:  # its result is recorded
@@ -304,26 +345,33 @@ class Runner:
 
         def next_points(n: int) -> list[tuple[str, object]]:
             rows = db.pending_job_points(self.con, job_id, n)
+            waiting = {key for key, _, _ in self.unrecorded}
             return [(row["key"], spec.point(row["idx"])) for row in rows
-                    if row["key"] not in self.engine.tasks]
+                    if not self.engine.holds(row["key"]) and row["key"] not in waiting]
         return next_points
 
     def _collect(self) -> None:
         """Finished tasks (their results stored by the engine): record them."""
-        needed: set[str] | None = None  # keys a job still waits for: read once, when first asked
-
-        def still_needed(key: str) -> bool:
-            nonlocal needed
-            if needed is None:
-                needed = db.needed_point_keys(self.con)
-            return key in needed
-
-        records = self.engine.collect(wanted=still_needed)
-        if records:
+        records = self.engine.collect(wanted=lambda key: db.point_needed(self.con, key))
+        if records or self.unrecorded:
             self._record(records)
 
     def _record(self, records) -> None:
-        db.record_point_results(self.con, records)
+        """Write point results to the database, with those an earlier write could not take;
+        if this one fails too (a full disk), all are kept for the next pass."""
+        self.unrecorded.extend(records)
+        try:
+            db.record_point_results(self.con, self.unrecorded)
+        except Exception as err:
+            if disk_full(err):
+                self.disk_error = (f"{NO_SPACE}: the job database cannot take "
+                                   f"{len(self.unrecorded)} point result(s); they are kept and "
+                                   "written once there is room")
+                log.error(self.disk_error)
+                return
+            raise
+        self.unrecorded.clear()
+        self.disk_error = None
 
     def _finish_jobs(self) -> None:
         """running -> done | failed, once no point of the job is pending."""
@@ -332,6 +380,8 @@ class Runner:
 
         for job in db.running_jobs_without_pending_points(self.con):
             job_id = job["id"]
+            if time.monotonic() < self._combine_after.get(job_id, 0.0):
+                continue
             counts = db.job_point_counts(self.con, job_id)
             try:
                 # validated when the job started, by this process (_start_queued)
@@ -345,10 +395,17 @@ class Runner:
                 self._recompute_damaged(job_id, spec, keys, err.keys)
                 continue
             except Exception as err:  # noqa: BLE001
+                if disk_full(err):  # not the job's fault: it is combined once there is room
+                    self._combine_after[job_id] = time.monotonic() + COMBINE_RETRY_S
+                    self.disk_error = (f"{NO_SPACE}: the dataset of job {job_id} cannot be "
+                                       "written; it is tried again once there is room")
+                    log.error(self.disk_error)
+                    continue
                 log.exception("combining job %s", job_id)
                 self._end_job(job_id, "failed", f"combining the points failed: "
                                                 f"{type(err).__name__}: {err}")
                 continue
+            self._combine_after.pop(job_id, None)
             if counts.get("ok", 0) == 0:
                 first = db.first_failure_message(self.con, job_id)
                 self._end_job(job_id, "failed", f"all {job['n_points']} points failed; first: "

@@ -190,6 +190,12 @@ class Problem(BaseModel):
     detail: str = Field(description="what went wrong")
 
 
+class QueueProblem(BaseModel):
+    detail: str = Field(description="the points waiting, this job's and the limits")
+    limits: dict[str, int] = Field(description="max_pending_points, max_pending_per_client, "
+                                               "pending (of the limit hit) and asked")
+
+
 def units() -> dict[str, str]:
     u = {name: PARAMETERS[name].unit for name in SWEPT}
     u.update({name: unit for name, (unit, _) in METRICS.items()})

@@ -8,6 +8,13 @@ from pathlib import Path
 
 TOKEN_ENV = "AIRPUFF_API_TOKEN"
 DEFAULT_MAX_POINTS = 10_000
+# Points waiting (pending in queued or running jobs) at most, in all and per client
+# (docs/api.md, "Limits"): a new job above them is refused with 503 or 429.
+DEFAULT_MAX_PENDING_POINTS = 40_000
+DEFAULT_MAX_PENDING_PER_CLIENT = 20_000
+# Wall-clock limit of one point's task [s] (`airpuff serve` and `airpuff sweep`): about 60 times
+# the longest run of the defaults (fine resolution, 54 s on one core, docs/performance.md).
+DEFAULT_TIME_LIMIT_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -23,6 +30,9 @@ class Settings:
     max_body_bytes: int = 1_000_000
     bind_address: str = "127.0.0.1"  # the address served: its Host names are accepted (api.hosts)
     allowed_hosts: tuple[str, ...] = ()  # further Host names accepted (``*``: any)
+    task_time_limit: float | None = DEFAULT_TIME_LIMIT_S  # s, wall clock of one point's task
+    max_pending_points: int = DEFAULT_MAX_PENDING_POINTS  # waiting points of all clients
+    max_pending_per_client: int = DEFAULT_MAX_PENDING_PER_CLIENT  # of one client address
 
     @classmethod
     def from_env(cls, data_dir, **kw) -> "Settings":

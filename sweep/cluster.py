@@ -75,8 +75,8 @@ def make_client(workers: int = 2, scheduler: str | None = None, **cluster_kwargs
     each (the solver and netCDF4 are not thread-safe; processes also sidestep the GIL), the
     environment of :func:`worker_env`, and its HTTP endpoint on a free port (8787 may be taken by
     another cluster).  Otherwise connect to the Dask scheduler at ``scheduler`` (e.g. ``"tcp://host:8786"``); those workers must have been started with one
-    thread each, ``NUMBA_NUM_THREADS=1`` and a ``NUMBA_CACHE_DIR`` and output folder on a file
-    system they share with this process -- :func:`check_workers` reports what it can see.
+    thread each, ``NUMBA_NUM_THREADS=1`` and a warm ``NUMBA_CACHE_DIR`` (results come back
+    through Dask, ``sweep.engine``) -- :func:`check_workers` reports what it can see.
     Close it with :func:`close_client`, which also shuts a LocalCluster down.  A LocalCluster's
     scheduler, nannies and workers run with ``LOCAL_CLUSTER_CONFIG``.
     """

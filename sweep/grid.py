@@ -21,6 +21,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from airpuff_core.budget import check_step_budget
 from airpuff_core.params import (PARAMETERS, SWEPT, ParameterError, RunParams, parse_decimal,
                                  parse_whole)
 
@@ -211,7 +212,11 @@ class SweepSpec:
         base = RunParams.from_dict(dict(self.options))
         self.options = {k: getattr(base, k) for k in self.options}
         # Building a RunParams validates it, cross-field limits included (microseconds a point).
-        return self.points()
+        points = self.points()
+        # The work of a run depends on the options only (t_end, cfl, sound speed, resolution),
+        # which every point shares.
+        check_step_budget(points[0])
+        return points
 
     # -- the runs ------------------------------------------------------------------------------
     def points(self) -> list[RunParams]:

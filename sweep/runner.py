@@ -76,14 +76,16 @@ ClusterReadyFn = Callable[[object], None]
 
 def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler: str | None = None,
               progress: ProgressFn | None = None, retry_failed: bool = False,
-              points_dir=None, on_cluster_ready: ClusterReadyFn | None = None) -> SweepOutcome:
+              points_dir=None, on_cluster_ready: ClusterReadyFn | None = None,
+              time_limit_s: float | None = None) -> SweepOutcome:
     """Run every missing point of ``spec`` and write ``out_dir/sweep.nc``.
 
     ``client``: an existing ``distributed.Client`` (left open); otherwise one is made with
     ``make_client(workers, scheduler)`` and closed (with its LocalCluster) at the end, also on
     Ctrl-C.  No cluster is started if every point is already stored.  ``retry_failed``: re-run
     points stored as failed by the model (by default they keep their recorded failure; failures
-    of the infrastructure are always re-run).  ``points_dir``: where
+    of the infrastructure are always re-run).  ``time_limit_s``: wall-clock limit of one point
+    [s] (``sweep.engine``; None: none).  ``points_dir``: where
     the point files live (default ``out_dir/points``); sweeps may share one, since a point's file
     name is the hash of its parameters.
 
@@ -124,7 +126,7 @@ def run_sweep(spec: SweepSpec, out_dir, client=None, workers: int = 2, scheduler
     warmup_s = None
     warnings: list[str] = []
     box = {"client": client, "own": client is None, "checked": False}
-    engine = PointEngine(client, points_dir)
+    engine = PointEngine(client, points_dir, time_limit_s=time_limit_s)
     try:
         if todo:
             warmup_s = _compute(spec, todo, engine, box, workers, scheduler,

@@ -31,6 +31,7 @@ was (``model`` or ``infrastructure``), which decides whether it is reused (:func
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import math
@@ -112,6 +113,18 @@ def write_dataset(ds: xr.Dataset, path: str | os.PathLike) -> Path:
 
     with process_local_write_lock():
         return write_netcdf(ds, path)
+
+
+def disk_full(err: BaseException) -> bool:
+    """Whether ``err`` says the disk is full: ENOSPC (or EDQUOT, a quota), SQLite's "database
+    or disk is full", or HDF5's "No space left on device" in the message of a netCDF write."""
+    if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return True
+    text = str(err)
+    return "No space left on device" in text or "disk is full" in text
+
+
+NO_SPACE = "no space left on the device (ENOSPC)"
 
 
 # -- point records -------------------------------------------------------------------------------

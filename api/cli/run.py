@@ -42,12 +42,14 @@ def format_metrics(metrics: dict, notes: dict | None = None) -> str:
 
 def run_command(args) -> int:
     from airpuff_core import simulate
+    from airpuff_core.budget import check_step_budget
     from airpuff_core.errors import SimulationError
     from airpuff_core.threads import check_threads
 
     prog = "airpuff run"
     try:
         params = params_from_args(args)
+        check_step_budget(params)
         threads = check_threads(args.threads)
     except ParameterError as err:
         fail(prog, err)

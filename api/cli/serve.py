@@ -19,7 +19,8 @@ import sys
 from pathlib import Path
 
 from api.hosts import ALLOWED_HOSTS_ENV, parse_allowed_hosts
-from api.settings import DEFAULT_MAX_POINTS, TOKEN_ENV, Settings
+from api.settings import (DEFAULT_MAX_PENDING_PER_CLIENT, DEFAULT_MAX_PENDING_POINTS,
+                          DEFAULT_MAX_POINTS, DEFAULT_TIME_LIMIT_S, TOKEN_ENV, Settings)
 
 from .common import fail, parse_whole
 
@@ -55,6 +56,15 @@ def add_serve_parser(sub) -> None:
                         "rebinding")
     p.add_argument("--max-points", default=str(DEFAULT_MAX_POINTS), metavar="N",
                    help=f"largest grid a request may ask for (default {DEFAULT_MAX_POINTS})")
+    p.add_argument("--task-time-limit", default=f"{DEFAULT_TIME_LIMIT_S:g}", metavar="SECONDS",
+                   help="wall-clock limit of one point; a point running longer is stopped (its "
+                        f"worker restarted) and fails (default {DEFAULT_TIME_LIMIT_S:g})")
+    p.add_argument("--max-pending-points", default=str(DEFAULT_MAX_PENDING_POINTS), metavar="N",
+                   help="points waiting in all queued and running jobs at most; a job above "
+                        f"gets 503 (default {DEFAULT_MAX_PENDING_POINTS})")
+    p.add_argument("--max-pending-per-client", default=str(DEFAULT_MAX_PENDING_PER_CLIENT),
+                   metavar="N", help="points waiting from one client address at most; a job "
+                                     f"above gets 429 (default {DEFAULT_MAX_PENDING_PER_CLIENT})")
     p.add_argument("--no-runner", action="store_true",
                    help="serve the API only: jobs are stored and stay queued until a server "
                         "with a runner is started on the same data directory")
@@ -138,6 +148,9 @@ def serve_command(args: argparse.Namespace) -> int:
     except OSError as err:
         fail(PROG, ValueError(f"invalid --data-dir={args.data_dir!r}: accepted a writable "
                               f"folder ({err.strerror})"))
+    time_limit = _int("--task-time-limit", args.task_time_limit, 1, 10**7)
+    max_pending = _int("--max-pending-points", args.max_pending_points, 1, 10**9)
+    per_client = _int("--max-pending-per-client", args.max_pending_per_client, 1, 10**9)
     try:
         allowed_hosts = parse_allowed_hosts(args.allowed_hosts)
     except ValueError as err:
@@ -145,7 +158,10 @@ def serve_command(args: argparse.Namespace) -> int:
                               "addresses, comma separated, or '*'"))
     settings = Settings.from_env(data_dir.resolve(), max_points=max_points, workers=workers,
                                  scheduler=scheduler, run_jobs=not args.no_runner,
-                                 bind_address=args.host, allowed_hosts=allowed_hosts)
+                                 bind_address=args.host, allowed_hosts=allowed_hosts,
+                                 task_time_limit=float(time_limit),
+                                 max_pending_points=max_pending,
+                                 max_pending_per_client=per_client)
 
     logging.basicConfig(level=args.log_level.upper(),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -19,7 +19,7 @@ import json
 import sys
 
 from airpuff_core.params import CHOICES, PARAMETERS, SWEPT, ParameterError
-from api.settings import DEFAULT_MAX_POINTS
+from api.settings import DEFAULT_MAX_POINTS, DEFAULT_TIME_LIMIT_S
 from sweep.grid import AXIS_SYNTAX
 
 from .common import RUN_OPTIONS, add_run_options, escape_percent, fail, parse_whole
@@ -47,11 +47,15 @@ def add_sweep_parser(sub) -> None:
                    help="number of local worker processes, one thread each (default 2)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="use the Dask scheduler at ADDRESS (e.g. tcp://host:8786) instead of "
-                        "starting local workers; workers must share the file system")
+                        "starting local workers; each point's file comes back through Dask, so "
+                        "the workers need not see OUT")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"folder for the point files and sweep.nc (default {DEFAULT_OUT})")
     p.add_argument("--max-points", default=str(DEFAULT_MAX_POINTS), metavar="N",
                    help=f"largest grid accepted, as `airpuff serve` (default {DEFAULT_MAX_POINTS})")
+    p.add_argument("--task-time-limit", default=f"{DEFAULT_TIME_LIMIT_S:g}", metavar="SECONDS",
+                   help="wall-clock limit of one point; a point running longer is stopped (its "
+                        f"worker restarted) and fails (default {DEFAULT_TIME_LIMIT_S:g})")
     p.add_argument("--retry-failed", action="store_true",
                    help="re-run points stored as failed by the model (a blow-up, no "
                         "convergence); failures of the infrastructure (a lost worker, a write "
@@ -97,6 +101,7 @@ def sweep_command(args) -> int:
     try:
         spec = spec_from_args(args, _whole("max-points", args.max_points))
         workers = _whole("workers", args.workers)
+        time_limit = _whole("task-time-limit", args.task_time_limit)
     except ParameterError as err:
         fail(PROG, err)
     try:
@@ -112,7 +117,8 @@ def sweep_command(args) -> int:
     stopped = None  # (exit code, message) if the sweep did not finish
     try:
         outcome = run_sweep(spec, args.out, workers=workers, scheduler=args.scheduler,
-                            progress=progress, retry_failed=args.retry_failed)
+                            progress=progress, retry_failed=args.retry_failed,
+                            time_limit_s=float(time_limit))
     except KeyboardInterrupt:
         stopped = (130, f"interrupted; finished points are stored in {args.out}; "
                         "run the same command again to resume")

@@ -170,7 +170,7 @@ def test_a_database_of_schema_version_2_is_migrated_and_its_points_reused(tmp_pa
 
         con = sqlite3.connect(data / "airpuff.db")
         try:
-            assert con.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 3
+            assert con.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
             columns = [r[1] for r in con.execute("PRAGMA table_info(points)")]
             assert columns == ["key", "status", "message", "metrics_json", "submissions"]
             stored = {k: (st, json.loads(m), n) for k, st, m, n in con.execute(
