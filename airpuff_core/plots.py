@@ -30,9 +30,10 @@ def _title(ds):
 
 
 def _save(fig, path, tight=True, dpi=120):
+    """Write ``fig`` to ``path`` as PNG, whatever its name ends with (a temporary name too)."""
     if tight:
         fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
+    fig.savefig(path, dpi=dpi, format="png")
     plt.close(fig)
 
 
