@@ -341,7 +341,8 @@ def create_app(settings: Settings) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        db.init(settings.db_path)
+        if not settings.database_ready:
+            db.init(settings.db_path)
         model_version()  # computed once, before any request needs a point key
         settings.points_dir.mkdir(parents=True, exist_ok=True)
         settings.jobs_dir.mkdir(parents=True, exist_ok=True)

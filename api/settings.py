@@ -33,6 +33,9 @@ class Settings:
     task_time_limit: float | None = DEFAULT_TIME_LIMIT_S  # s, wall clock of one point's task
     max_pending_points: int = DEFAULT_MAX_PENDING_POINTS  # waiting points of all clients
     max_pending_per_client: int = DEFAULT_MAX_PENDING_PER_CLIENT  # of one client address
+    # True when the caller (`airpuff serve`) has already run db.init on db_path, so that the
+    # app's start-up does not run the database's quick_check a second time
+    database_ready: bool = False
 
     @classmethod
     def from_env(cls, data_dir, **kw) -> "Settings":

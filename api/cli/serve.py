@@ -11,6 +11,7 @@ the same data directory.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import ipaddress
 import logging
 import os
@@ -205,7 +206,7 @@ def serve_command(args: argparse.Namespace) -> int:
 
     from api.app import create_app
 
-    app = create_app(settings)
+    app = create_app(dataclasses.replace(settings, database_ready=True))
     host_text = f"[{args.host}]" if ":" in args.host else args.host
     sys.stderr.write(f"{PROG}: listening on http://{host_text}:{actual_port} "
                      f"(data dir {settings.data_dir}, "
