@@ -1,6 +1,7 @@
 """Before/after timings in one process, alternating: another commit's solver against this tree's.
 
-    python -m benchmarks.interleaved REF run [coarse|paper|fine] [--repeat N] [--threads N]
+    python -m benchmarks.interleaved REF run [coarse|paper|fine] [--model paper|clinical]
+                                      [--repeat N] [--threads N]
     python -m benchmarks.interleaved REF mfpm [--rounds N] [--threads N]
 
 REF is a git revision (``main``, a commit); its ``airpuff_core`` is exported with ``git archive``
@@ -9,7 +10,10 @@ take turns: run A, run B, run A, ... (or round A, round B for the MFPM operator)
 speed changes from minute to minute (docs/performance.md), so only figures taken in the same
 minutes compare; the per-pair ratios new/old are printed with the metrics of each run.  Both
 the wall time and the process's CPU time are measured: on a machine shared with other work, the
-CPU time leaves out the time the process waited for a core (not the slower caches).
+CPU time leaves out the time the process waited for a core (not the slower caches).  Each run
+is bracketed by the yardstick (``benchmarks/yardstick.py``, a fixed loop of about 1 s), and its
+wall time divided by the mean of the two yardsticks around it is printed too: a figure of the
+code that the machine's speed of the moment cancels out of (largely), comparable across days.
 ``--threads`` (default 1) sets the threads of this tree's kernels (``airpuff_core/threads.py``);
 a revision from before them runs on one thread whatever it says.
 """
@@ -31,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.yardstick import yardstick_data, yardstick_seconds
+
 ROOT = Path(__file__).resolve().parent.parent
 SHOWN = ("P1", "P2", "CH", "t_A1", "t_A2", "DA")
 
@@ -50,33 +56,47 @@ def import_revision(ref: str, into: Path):
     return module
 
 
-def compare_runs(old, resolution, repeat, threads=1):
+def compare_runs(old, resolution, repeat, threads=1, model="paper"):
+    """``repeat`` pairs of runs (old, new) of the ``model`` preset at ``resolution``; returns the
+    figures printed: per code the wall and CPU times [s] and the yardstick ratios."""
     import airpuff_core as new
     walls = {"old": [], "new": []}
     cpus = {"old": [], "new": []}
+    ratios = {"old": [], "new": []}  # wall time / yardstick
     # this tree's runs on ``threads`` threads; an older revision's on one, whatever it says
     options = {old: {}, new: {"threads": threads}}
     for pkg in (old, new):
-        pkg.simulate(pkg.RunParams(resolution=resolution, t_end=0.05), **options[pkg])
+        pkg.simulate(pkg.RunParams(resolution=resolution, model=model, t_end=0.05),
+                     **options[pkg])
+    data = yardstick_data()
+    stick = yardstick_seconds(data)
     for _ in range(repeat):
         for name, pkg in (("old", old), ("new", new)):
             t0, c0 = time.perf_counter(), time.process_time()
-            r = pkg.simulate(pkg.RunParams(resolution=resolution), **options[pkg])
+            r = pkg.simulate(pkg.RunParams(resolution=resolution, model=model), **options[pkg])
             walls[name].append(time.perf_counter() - t0)
             cpus[name].append(time.process_time() - c0)
+            stick_before, stick = stick, yardstick_seconds(data)
+            ratios[name].append(walls[name][-1] / (0.5 * (stick_before + stick)))
             d = r.diagnostics
-            print(json.dumps({"code": name, "resolution": resolution,
+            print(json.dumps({"code": name, "model": model, "resolution": resolution,
                               "wall_s": round(walls[name][-1], 2),
-                              "cpu_s": round(cpus[name][-1], 2), "steps": d["steps"],
+                              "cpu_s": round(cpus[name][-1], 2),
+                              "yardstick_ratio": round(ratios[name][-1], 3),
+                              "steps": d["steps"],
+                              "coupling_iterations_per_step":
+                                  round(d["mean_coupling_iterations"], 3),
                               "hyperviscous_applications_per_step":
                                   round(d["mean_hyperviscous_substeps"], 3),
                               **{k: r.metrics[k] for k in SHOWN}}), flush=True)
-    for label, t in (("wall", walls), ("CPU", cpus)):
-        ratios = [b / a for a, b in zip(t["old"], t["new"])]
-        print(f"{resolution}, {label} time: old {min(t['old']):.2f} s fastest, "
+    for label, t in (("wall", walls), ("CPU", cpus), ("yardstick ratio", ratios)):
+        pairs = [b / a for a, b in zip(t["old"], t["new"])]
+        unit = "" if label == "yardstick ratio" else " s"
+        print(f"{model} {resolution}, {label}: old {min(t['old']):.2f}{unit} fastest, "
               f"{statistics.median(t['old']):.2f} median; new {min(t['new']):.2f} / "
               f"{statistics.median(t['new']):.2f}; new/old per pair "
-              f"{', '.join(f'{x:.3f}' for x in ratios)}")
+              f"{', '.join(f'{x:.3f}' for x in pairs)}", flush=True)
+    return {"wall": walls, "cpu": cpus, "yardstick_ratio": ratios}
 
 
 def compare_mfpm(old, rounds, repeats=200):
@@ -103,25 +123,38 @@ def compare_mfpm(old, rounds, repeats=200):
           f"{statistics.median(ratios):.3f}")
 
 
+def interleaved_runs(ref, resolution="paper", repeat=2, threads=1, model="paper"):
+    """``compare_runs`` of git revision ``ref`` against this tree (on ``threads`` threads)."""
+    from airpuff_core.threads import solver_threads
+
+    with tempfile.TemporaryDirectory() as tmp, solver_threads(threads):
+        old = import_revision(ref, Path(tmp))
+        print(f"interleaved runs: old = {ref}, new = this tree; {model} preset, {resolution} "
+              f"resolution, {threads} thread(s)", flush=True)
+        return compare_runs(old, resolution, repeat, threads, model)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("ref", help="git revision to compare against, e.g. main")
     ap.add_argument("what", choices=("run", "mfpm"))
     ap.add_argument("resolution", nargs="?", default="paper", choices=("coarse", "paper", "fine"))
+    ap.add_argument("--model", default="paper", choices=("paper", "clinical"),
+                    help="model preset of the runs (default paper)")
     ap.add_argument("--repeat", type=int, default=2, help="runs of each (default 2)")
     ap.add_argument("--rounds", type=int, default=21, help="MFPM rounds of each (default 21)")
     ap.add_argument("--threads", type=int, default=1,
                     help="threads of this tree's kernels (default 1)")
     args = ap.parse_args(argv)
+    if args.what == "run":
+        interleaved_runs(args.ref, args.resolution, args.repeat, args.threads, args.model)
+        return
     from airpuff_core.threads import solver_threads
 
     with tempfile.TemporaryDirectory() as tmp, solver_threads(args.threads):  # the MFPM rounds
         old = import_revision(args.ref, Path(tmp))
         importlib.import_module("airpuff_ref.fluid")
-        if args.what == "run":
-            compare_runs(old, args.resolution, args.repeat, args.threads)
-        else:
-            compare_mfpm(old, args.rounds)
+        compare_mfpm(old, args.rounds)
 
 
 if __name__ == "__main__":

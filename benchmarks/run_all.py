@@ -2,7 +2,10 @@
 
 The default runs are timed on one thread (the figure of one core) and on every thread Numba has
 (what `airpuff run` uses); the fine run, the shell's cost and the cost against resolution as
-their docstrings say.
+their docstrings say.  The clinical preset's paper-resolution point, a sweep's unit of work, is
+timed on one core against ``BASELINE`` (the code before issue 31), the two alternated in one
+process and each run divided by the yardstick around it (``benchmarks/interleaved.py``,
+``benchmarks/yardstick.py``).
 
     python -m benchmarks.run_all            # all
     python -m benchmarks.run_all --quick    # skip the paper- and fine-resolution runs, the sweep
@@ -16,17 +19,23 @@ import os
 import platform
 import sys
 
-from benchmarks import bench_compile, bench_mfpm, bench_shell, bench_sweep, run_default, scaling
+from benchmarks import (bench_compile, bench_mfpm, bench_shell, bench_sweep, interleaved,
+                        run_default, scaling, yardstick)
+
+# the main of 2026-12-04 before issue 31's changes: the "before" of the clinical point
+BASELINE = "c8ce7b3"
 
 
 def main(argv):
     quick = "--quick" in argv
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    yardstick.main(["--repeat", "3"])
     bench_compile.main()
     bench_mfpm.main()
     run_default.main("coarse", repeat=3, threads=1)
     run_default.main("coarse", repeat=3)
     if not quick:
+        interleaved.interleaved_runs(BASELINE, "paper", repeat=2, threads=1, model="clinical")
         run_default.main("paper", repeat=3, threads=1)
         run_default.main("paper", repeat=3)
         run_default.main("fine", repeat=1)
