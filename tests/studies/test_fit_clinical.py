@@ -1,0 +1,150 @@
+"""studies/fit_clinical.py: its 1-D solver on functions with known roots, its refusal of a
+clinical fit without the instrument and calibration, the runs through the sweep engine on a real
+Dask cluster, and a real round trip: targets computed by the solver at known tissue values,
+fitted back from the published ones (coarse resolution)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import xarray as xr
+
+from studies import fit_clinical as fc
+from sweep.engine import stored_record
+from sweep.storage import point_key
+
+
+# -- the 1-D solver ---------------------------------------------------------------------------
+@pytest.mark.parametrize("f, low, high, x0, root", [
+    (lambda x: 2.0 * x - 3.0, 0.0, 5.0, 0.5, 1.5),                # linear, from below
+    (lambda x: math.exp(x) - 5.0, 0.0, 3.0, 2.9, math.log(5.0)),  # convex, from above
+    (lambda x: 1.0 - x ** 3, 0.0, 2.0, 0.1, 1.0),                 # decreasing
+    (lambda x: math.atan(10 * (x - 0.7)), 0.0, 1.0, 0.0, 0.7),    # flat far from the root
+])
+def test_solve_monotone_finds_known_roots_inside_the_range(f, low, high, x0, root):
+    seen = []
+
+    def residual(x):
+        seen.append(x)
+        return f(x)
+
+    s = fc.solve_monotone(residual, low, high, x0, step=0.25 * (high - low), tolerance=1e-6,
+                          max_evaluations=40)
+    assert s.status == "converged"
+    assert abs(s.residual) <= 1e-6
+    assert s.x == pytest.approx(root, abs=1e-4)
+    assert all(low <= x <= high for x in seen)
+    assert [x for x, _ in s.history] == seen
+
+
+@pytest.mark.parametrize("f, edge, x_edge", [
+    (lambda x: x + 10.0, "lower edge", 0.0),    # root at -10: below the range
+    (lambda x: x - 10.0, "upper edge", 5.0),    # root at +10: above it
+    (lambda x: 10.0 - x, "upper edge", 5.0),    # decreasing, root above
+])
+def test_solve_monotone_stops_at_the_edge_when_the_target_is_out_of_range(f, edge, x_edge):
+    s = fc.solve_monotone(f, 0.0, 5.0, 2.0, step=1.0, tolerance=1e-6, max_evaluations=20)
+    assert s.status == edge
+    assert s.x == x_edge
+    assert s.residual == pytest.approx(f(x_edge))
+    assert len(s.history) <= 4  # the start, a secant step, the edge
+
+
+def test_solve_monotone_newton_start_and_known_first_residual():
+    calls = []
+
+    def f(x):
+        calls.append(x)
+        return 3.0 * (x - 2.0)
+
+    s = fc.solve_monotone(f, 0.0, 4.0, 1.0, step=1.0, tolerance=1e-9, derivative=3.0, f0=-3.0)
+    assert s.status == "converged" and s.x == pytest.approx(2.0)
+    assert calls == [pytest.approx(2.0)]  # x0's residual was known; one Newton step
+
+
+def test_sensitivities_of_a_plane_are_its_coefficients():
+    def slope(x, y):
+        return 1.0 + 0.25 * x + 3.0 * y
+
+    def ch(x, y):
+        return -2.0 + 0.3 * x + 40.0 * y
+
+    pts = [(10.0, 0.3), (12.0, 0.3), (12.0, 0.4), (11.0, 0.35)]
+    sens = fc.sensitivities([(x, y, slope(x, y)) for x, y in pts],
+                            [(x, y, ch(x, y)) for x, y in pts], (11.5, 0.36))
+    assert sens["dslope_dG_t"] == pytest.approx(0.25)
+    assert sens["dslope_dg"] == pytest.approx(3.0)
+    assert sens["dCH_dG_t"] == pytest.approx(0.3)
+    assert sens["dCH_dg"] == pytest.approx(40.0)
+    assert sens["gauss_seidel_factor"] == pytest.approx(3.0 * 0.3 / (0.25 * 40.0))
+
+
+# -- the command ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv, word", [
+    ([], "instrument: ora"),                                      # no ORA pulse yet
+    (["--instrument", "paper", "--raw"], "--development"),        # development not asked for
+    (["--instrument", "paper", "--raw", "--development", "--set", "ve_g=0.5"], "--set ve_g"),
+    (["--instrument", "paper", "--raw", "--development", "--cct", "0.5"], "--cct"),
+    (["--instrument", "paper", "--raw", "--development", "--set", "IOP=99"], "IOP"),
+])
+def test_a_clinical_fit_is_refused_without_its_parts_and_bad_input_is_one_line(
+        tmp_path, capsys, argv, word):
+    with pytest.raises(SystemExit) as exc:
+        fc.main(["--out", str(tmp_path / "fit"), *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and word in err, err
+    assert not (tmp_path / "fit" / "points").exists()
+
+
+# -- the runs ---------------------------------------------------------------------------------------
+@pytest.mark.cluster
+def test_point_runner_on_dask_equals_in_process_and_reuses_stored_points(tmp_path, dask_client):
+    base = {"model": "clinical", "resolution": "coarse", **fc.REFERENCE}
+    points = [fc.RunParams.from_dict({**base, "thickness": c, "t_end": 12.0}) for c in (0.5, 0.6)]
+    logged = []
+    on_dask = fc.PointRunner(tmp_path / "dask", dask_client, lambda r, p: logged.append(r))
+    here = fc.PointRunner(tmp_path / "here")
+    a, b = on_dask.run(points), here.run(points)
+    assert [r.key for r in a] == [point_key(p) for p in points] == [r.key for r in b]
+    assert all(r.ok and r.computed for r in a + b)
+    for ra, rb in zip(a, b):
+        assert ra.metrics["P1"] == rb.metrics["P1"] and math.isfinite(ra.metrics["P1"])
+    assert stored_record(tmp_path / "dask", a[0].key) is not None
+    again = on_dask.run(points)
+    assert [r.computed for r in again] == [False, False]
+    assert len(logged) == 4
+
+
+@pytest.mark.slow
+def test_fit_recovers_known_tissue_values_from_targets_the_solver_computed(tmp_path):
+    """A real round trip at coarse resolution: the CCT slope and CH computed by the solver at
+    G_t 11 kPa, g 0.36; the fit, started at the published 9.48 kPa and 0.3, must find them again
+    within what its tolerances allow (0.01 mmHg per 100 um and 0.02 mmHg)."""
+    truth = (11.0, 0.36)
+    base = {"model": "clinical", "resolution": "coarse", **fc.REFERENCE}
+    responses = fc.Responses(fc.PointRunner(tmp_path / "truth"), base, log=lambda e: None)
+    slope, ch = responses.slope(*truth), responses.ch(*truth)
+    out = tmp_path / "fit"
+    code = fc.main(["--out", str(out), "--instrument", "paper", "--raw", "--development",
+                    "--resolution", "coarse", "--slope-target", repr(slope), "--ch-target",
+                    repr(ch), "--slope-tolerance", "0.01", "--ch-tolerance", "0.02"])
+    assert code == 0
+    summary = json.loads((out / "fit.json").read_text())
+    fitted = summary["fitted"]
+    assert fitted["transverse_shear_modulus"]["status"] == "converged"
+    assert fitted["ve_g"]["status"] == "converged"
+    assert fitted["transverse_shear_modulus"]["value"] == pytest.approx(truth[0], abs=0.15)
+    assert fitted["ve_g"]["value"] == pytest.approx(truth[1], abs=0.003)
+    assert summary["mode"] == "development"
+    with xr.open_dataset(out / "fit.nc") as ds:
+        assert ds.attrs["mode"] == "development"
+        assert ds.sizes["run"] == len(summary["runs"]) and ds.sizes["run"] >= 6
+        assert ds.sizes["evaluation"] == len(summary["evaluations"])
+        last = summary["evaluations"][-1]
+        assert float(ds["evaluation_value"][-1]) == pytest.approx(last["value"])
+    assert "DEVELOPMENT" in (out / "fit.md").read_text()
+    lines = (out / "evaluations.jsonl").read_text().splitlines()
+    assert len(lines) == len(summary["runs"]) + len(summary["evaluations"])
