@@ -39,6 +39,20 @@ def _crossings(t, f, downward):
 
 BUDGET_PARTS = ("fluid", "equilibrium", "overstress", "inertia")
 
+# The coefficients of the applanation readings: the paper's IOPcc (P1 - 0.43 P2), and the two the
+# ORA stores as fixed (``iop_cc_coef``, ``crf_coef``: docs/sources.md section 2).
+IOPCC_COEF = 0.43
+CRF_COEF = 0.70
+
+
+def applanation_readings(p1, p2) -> dict:
+    """The readings of the two applanation pressures p1, p2 [mmHg] (floats or arrays), in the
+    forms of the module docstring: CH = p1 - p2, IOPg = (p1 + p2)/2, IOPcc = p1 - 0.43 p2,
+    CRF = p1 - 0.70 p2, IOPcc_ora = p2 - 0.43 p1 (without the device's constants; the
+    calibration, ``calibration.py``, adds its own)."""
+    return {"CH": p1 - p2, "IOPg": 0.5 * (p1 + p2), "IOPcc": p1 - IOPCC_COEF * p2,
+            "CRF": p1 - CRF_COEF * p2, "IOPcc_ora": p2 - IOPCC_COEF * p1}
+
 
 def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms,
                     step_budget=None):
@@ -91,11 +105,7 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         for k in ("t_A1", "P1", "t_A2", "P2"):
             notes[k] = "the cornea never applanated (apex curvature stayed convex)"
     if math.isfinite(m["P1"]) and math.isfinite(m["P2"]):
-        m["CH"] = m["P1"] - m["P2"]
-        m["IOPg"] = 0.5 * (m["P1"] + m["P2"])
-        m["IOPcc"] = m["P1"] - 0.43 * m["P2"]
-        m["CRF"] = m["P1"] - 0.7 * m["P2"]
-        m["IOPcc_ora"] = m["P2"] - 0.43 * m["P1"]
+        m.update(applanation_readings(m["P1"], m["P2"]))
         for part in ("profile",) + BUDGET_PARTS + ("residual",):
             m[f"CH_{part}"] = m[f"P1_{part}"] - m[f"P2_{part}"]
     else:

@@ -31,9 +31,11 @@ from .version import __version__
 PACKAGE_DIR = Path(__file__).resolve().parent
 
 # Modules that cannot change the numbers of a run: file writing and reading, figures, the
-# stability analysis (not used by a run), versions.  Every other module counts.
-NOT_NUMERICAL = ("atomic.py", "dataset.py", "plots.py", "provenance.py", "stability.py",
-                 "version.py")
+# stability analysis (not used by a run), versions, and the calibration (it maps a run's raw
+# readings when a dataset is made; the calibrations themselves are keyed by this hash).  Every
+# other module counts.
+NOT_NUMERICAL = ("atomic.py", "calibration.py", "dataset.py", "plots.py", "provenance.py",
+                 "stability.py", "version.py")
 
 # Libraries whose versions are recorded with every result.
 LIBRARIES = ("numpy", "numba", "xarray", "netCDF4", "dask")

@@ -17,17 +17,22 @@ from typing import Any
 import numpy as np
 
 from .params import CHOICES, PARAMETERS, RunParams
-from .provenance import provenance
+from .calibration import calibrate_metrics, variable_attrs
+from .provenance import model_version, provenance
 
-# metric name -> (unit, long name).  Missing metrics are NaN in arrays and None in JSON.
+# metric name -> (unit, long name).  Missing metrics are NaN in arrays and None in JSON.  The
+# applanation readings are raw (the instrument's pressure at the apex, no calibration); their
+# calibrated forms are ``calibration.CALIBRATED`` (``<name>_cal``).
 METRICS: dict[str, tuple[str, str]] = {
-    "P1": ("mmHg", "jet pressure at the apex at the first applanation"),
-    "P2": ("mmHg", "jet pressure at the apex at the second applanation"),
-    "CH": ("mmHg", "corneal hysteresis P1 - P2"),
-    "IOPg": ("mmHg", "Goldmann-equivalent IOP 0.5 (P1 + P2)"),
-    "IOPcc": ("mmHg", "corneal-compensated IOP P1 - 0.43 P2 (paper's definition)"),
-    "CRF": ("mmHg", "corneal resistance factor P1 - 0.7 P2 (ORA, Luce 2006)"),
-    "IOPcc_ora": ("mmHg", "corneal-compensated IOP P2 - 0.43 P1 (ORA, Luce 2006)"),
+    "P1": ("mmHg", "jet pressure at the apex at the first applanation (raw)"),
+    "P2": ("mmHg", "jet pressure at the apex at the second applanation (raw)"),
+    "CH": ("mmHg", "corneal hysteresis P1 - P2 (raw)"),
+    "IOPg": ("mmHg", "Goldmann-equivalent IOP 0.5 (P1 + P2) (raw: not on Goldmann's scale)"),
+    "IOPcc": ("mmHg", "corneal-compensated IOP P1 - 0.43 P2 (paper's definition, raw)"),
+    "CRF": ("mmHg", "corneal resistance factor P1 - 0.7 P2 (ORA, Luce 2006; raw, without the "
+                    "device's constant)"),
+    "IOPcc_ora": ("mmHg", "corneal-compensated IOP P2 - 0.43 P1 (ORA, Luce 2006; raw, without "
+                          "the device's scale and constant)"),
     "t_A1": ("ms", "time of the first applanation"),
     "t_A2": ("ms", "time of the second applanation"),
     "t_HC": ("ms", "time of highest concavity (maximum apex displacement)"),
@@ -36,6 +41,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "v_in_max": ("m/s", "peak inward apex velocity"),
     "v_out_max": ("m/s", "peak outward apex velocity"),
 }
+# the raw readings that have a calibrated form (netCDF attribute calibration = "raw")
+RAW_READINGS = ("P1", "P2", "CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora")
 # the apex force budget at each applanation and its difference, CH's parts (metrics.py,
 # docs/model.md section 7)
 _BUDGET_NAMES = {
@@ -121,8 +128,10 @@ class RunResult:
         return {k: (None if v is None or not np.isfinite(v) else float(v))
                 for k, v in self.metrics.items()}
 
-    def to_dataset(self):
-        """The CF-annotated ``xarray.Dataset`` of the run (docs/model.md section 7)."""
+    def to_dataset(self, calibrations=None):
+        """The CF-annotated ``xarray.Dataset`` of the run (docs/model.md section 7), with the
+        calibrated readings beside the raw ones (``calibration.py``; ``calibrations``: the
+        calibrations to look in, default the package's)."""
         import xarray as xr  # only here: the solver does not need xarray
 
         from .dataset import global_attributes, time_coordinate
@@ -137,10 +146,16 @@ class RunResult:
                                           {"units": unit, "long_name": long_name})
         for name, (unit, long_name) in METRICS.items():
             attrs = {"units": unit, "long_name": long_name}
+            if name in RAW_READINGS:
+                attrs["calibration"] = "raw"
             note = self.metric_notes.get(name)
             if note:
                 attrs["comment"] = note
             data_vars[name] = xr.Variable((), float(self.metrics.get(name, np.nan)), attrs)
+        calibrated, cal, reason = calibrate_metrics(self.params.to_dict(), self.metrics,
+                                                    model_version(), calibrations)
+        for name, value in calibrated.items():
+            data_vars[name] = xr.Variable((), float(value), variable_attrs(name, cal, reason))
 
         coords = {
             "time": time_coordinate(self.time),

@@ -5,12 +5,13 @@ and ``time`` [ms].  Variables: every metric of ``airpuff_core.result.METRICS`` (
 or failed), ``status`` ("ok", "failed", or "missing" for a point not run yet -- a file combined
 after an interruption), ``message`` (why a point failed, or why some of its metrics are missing),
 ``point_key`` (the per-point file with the shapes and fluid fields is ``<points_dir>/<point_key>.nc``,
-named in the ``point_files`` attribute relative to the combined file's folder), ``model_version``
-and ``provenance`` (per point: the model version, and the JSON of the provenance attributes of
-the point's own file: airpuff version, git commit, library versions), ``wall_time`` [s], and the
-histories of
-``SWEEP_HISTORIES`` on one common ``time`` axis.  The non-swept run options are scalar
-coordinates (numbers, with units) and global attributes (all of them, as JSON too).  The
+named in the ``point_files`` attribute relative to the combined file's folder), the calibrated
+readings ``<name>_cal`` of ``airpuff_core.calibration.CALIBRATED`` (computed at combine time
+from the raw P1 and P2), ``model_version`` and ``provenance`` (per point: the model version, and
+the JSON of the provenance attributes of the point's own file: airpuff version, git commit,
+library versions), ``wall_time`` [s], and the histories of ``SWEEP_HISTORIES`` on one common
+``time`` axis.  The non-swept run options are scalar coordinates (numbers, with units) and global
+attributes (all of them, as JSON too).  The
 per-point files it refers to are described in docs/model.md, section 7.
 
 A point file that cannot be read (or was made by another model version) is moved aside by
@@ -30,10 +31,12 @@ import numpy as np
 import xarray as xr
 
 from airpuff_core.atomic import remove_stale_temp_files
+from airpuff_core.calibration import (apply_coefficients, find_calibration, load_calibrations,
+                                      nan_readings, variable_attrs)
 from airpuff_core.dataset import global_attributes, time_coordinate
 from airpuff_core.params import PARAMETERS, SWEPT
-from airpuff_core.provenance import PROVENANCE_ATTRS, provenance
-from airpuff_core.result import HISTORIES, METRICS
+from airpuff_core.provenance import PROVENANCE_ATTRS, model_version, provenance
+from airpuff_core.result import HISTORIES, METRICS, RAW_READINGS
 
 from .storage import notes_message, open_point, point_key, point_path, read_point, write_dataset
 
@@ -92,7 +95,9 @@ def combine(spec, points_dir: str | os.PathLike, keys: list[str] | None = None,
     if grid.damaged:
         raise DamagedPointFiles(grid.damaged)
     time_axis = _common_time([t for t, _ in grid.series.values()])
-    return xr.Dataset(_data_vars(grid, time_axis), coords=_coords(spec, time_axis),
+    data_vars = _data_vars(grid, time_axis)
+    data_vars.update(_calibrated_vars(spec, grid))
+    return xr.Dataset(data_vars, coords=_coords(spec, time_axis),
                       attrs=_attrs(spec, grid, point_files))
 
 
@@ -169,7 +174,10 @@ def _data_vars(grid: _Grid, time_axis: np.ndarray) -> dict[str, Any]:
     dims = SWEPT
     data_vars: dict[str, Any] = {}
     for name, (unit, long_name) in METRICS.items():
-        data_vars[name] = (dims, grid.metrics[name], {"units": unit, "long_name": long_name})
+        attrs = {"units": unit, "long_name": long_name}
+        if name in RAW_READINGS:
+            attrs["calibration"] = "raw"
+        data_vars[name] = (dims, grid.metrics[name], attrs)
     data_vars["status"] = (dims, grid.status.astype(str),
                            {"long_name": "outcome of the run at this point: ok, failed, or missing "
                                          "(not run yet)"})
@@ -193,6 +201,35 @@ def _data_vars(grid: _Grid, time_axis: np.ndarray) -> dict[str, Any]:
         unit, long_name = HISTORIES[h]
         attrs = {"units": unit, "long_name": long_name, **grid.history_attrs.get(h, {})}
         data_vars[h] = (dims + ("time",), values, attrs)
+    return data_vars
+
+
+def _calibrated_vars(spec, grid: _Grid) -> dict[str, Any]:
+    """The calibrated readings of every point (``airpuff_core.calibration``), computed now from
+    the raw P1 and P2 with the calibrations of this installation (not read from the point files,
+    which may predate the calibration).  The points of a sweep differ in E0, IOP, thickness
+    (the eye: one calibration for all) and pmax (the instrument: one calibration each)."""
+    calibrations = load_calibrations()
+    values = nan_readings(grid.shape)
+    labels, reasons = set(), set()
+    for idx, params in zip(np.ndindex(*grid.shape), spec.points()):
+        version = grid.model_version[idx] or model_version()
+        cal, reason = find_calibration(params.to_dict(), version, calibrations)
+        if cal is None:
+            reasons.add(reason)
+            continue
+        labels.add(cal.label)
+        point = apply_coefficients(cal.coefficients(), grid.metrics["P1"][idx],
+                                   grid.metrics["P2"][idx])
+        for name, v in point.items():
+            values[name][idx] = v
+    data_vars = {}
+    for name, array in values.items():
+        attrs = variable_attrs(name, None, "; ".join(sorted(reasons)))
+        attrs["calibration"] = "; ".join(sorted(labels)) or "none"
+        if not reasons:
+            attrs.pop("comment")
+        data_vars[name] = (SWEPT, array, attrs)
     return data_vars
 
 

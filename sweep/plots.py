@@ -112,3 +112,37 @@ def plot_metrics_vs_iop(datasets, path, thickness=None, pmax=None) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     return path
+
+
+def plot_calibration(data: dict, path) -> Path:
+    """The reference sweep of a calibration (``sweep.calibration.make_calibration``'s object):
+    the raw P1, P2, IOPg and the calibrated IOPg, IOPnc against the true IOP (left), and the
+    calibrated readings' errors with the 0.3 mmHg band (right); written as PNG to ``path``."""
+    ref = data["reference_sweep"]
+    iop = np.asarray(ref["IOP"], float)
+    p1, p2 = np.asarray(ref["P1_raw"], float), np.asarray(ref["P2_raw"], float)
+    fig = new_figure(10.0, 4.2)
+    left, right = fig.subplots(1, 2)
+    left.plot(iop, p1, "^--", color="tab:red", label="P1 (raw)")
+    left.plot(iop, p2, "v--", color="tab:blue", label="P2 (raw)")
+    left.plot(iop, 0.5 * (p1 + p2), "s--", color="tab:gray", label="IOPg (raw)")
+    left.plot(iop, ref["IOPg_cal"], "o-", color="black", label="IOPg_cal")
+    left.plot(iop, ref["IOPnc_cal"], "x:", color="tab:green", label="IOPnc_cal")
+    left.plot(iop, iop, "-", color="tab:orange", lw=0.8, label="true IOP")
+    left.set_xlabel("true IOP [mmHg]")
+    left.set_ylabel("reading [mmHg]")
+    left.legend(fontsize=8)
+    for name, style in (("IOPg_cal", "o-"), ("IOPnc_cal", "x:"), ("IOPcc_ora_cal", "d-.")):
+        right.plot(iop, np.asarray(ref[name], float) - iop, style, label=f"{name} - IOP")
+    right.axhspan(-0.3, 0.3, color="tab:orange", alpha=0.15, label="+-0.3 mmHg")
+    right.axhline(0.0, color="black", lw=0.6)
+    right.set_xlabel("true IOP [mmHg]")
+    right.set_ylabel("calibrated reading - true IOP [mmHg]")
+    right.legend(fontsize=8)
+    eye = data["reference_eye"]
+    fig.suptitle(f"calibration of instrument {data['instrument']} ({data['model']} model, "
+                 f"{data['resolution']} resolution, model version {data['model_version']}): "
+                 f"reference eye CCT {eye['thickness']:g} mm, E0 {eye['E0']:g} MPa, "
+                 f"R {eye['R']:g} mm", fontsize=9)
+    fig.savefig(str(path), dpi=110, format="png")
+    return Path(path)

@@ -9,6 +9,7 @@ core and the sweep machinery import nothing of the command line:
 * ``sweep``    -- ``airpuff sweep``
 * ``identify`` -- ``airpuff identify``
 * ``correct``  -- ``airpuff correct fit|apply|sensitivity``
+* ``calibrate`` -- ``airpuff calibrate``
 * ``serve``    -- ``airpuff serve``
 
 The entry point is ``api.cli:main`` (pyproject.toml); ``python -m api.cli`` runs the same.
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .calibrate import add_calibrate_parser
 from .common import OneLineParser
 from .correct import add_correct_parser
 from .identify import add_identify_parser
@@ -52,7 +54,7 @@ def build_parser() -> OneLineParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=OneLineParser)
     sub.required = True
     for add in (add_run_parser, add_plot_parser, add_sweep_parser, add_serve_parser,
-                add_identify_parser, add_correct_parser):
+                add_identify_parser, add_correct_parser, add_calibrate_parser):
         add(sub)
     return parser
 
