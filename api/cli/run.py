@@ -19,7 +19,8 @@ def add_run_parser(sub) -> None:
     add_run_options(p)
     p.add_argument("--out", metavar="FILE.nc", default=None, help="write the run's netCDF here")
     p.add_argument("--json", action="store_true",
-                   help="print exactly one JSON object with the metrics on stdout")
+                   help="print exactly one JSON object with the metrics on stdout (raw, and "
+                        "calibrated: <name>_cal and the calibration used or why none)")
     p.add_argument("--threads", metavar="N", default=None,
                    help="threads of the solver's kernels, 1 to the cores Numba sees (default all "
                         "of them); the results do not depend on it")
@@ -37,6 +38,21 @@ def format_metrics(metrics: dict, notes: dict | None = None) -> str:
             lines.append(f"  {name:10s} {'missing':>10s}        {why}")
         else:
             lines.append(f"  {name:10s} {v:10.3f} {unit:6s} {long_name}")
+    return "\n".join(lines)
+
+
+def format_calibrated(values: dict, calibration: str) -> str:
+    """The calibrated readings (``airpuff_core.calibration.CALIBRATED``) under the raw metrics,
+    with the calibration used or why there is none."""
+    from airpuff_core.calibration import CALIBRATED
+
+    lines = [f"  calibration: {calibration}"]
+    for name, (unit, long_name) in CALIBRATED.items():
+        v = values.get(name, math.nan)
+        if math.isfinite(v):
+            lines.append(f"  {name:13s} {v:10.3f} {unit:6s} {long_name}")
+        else:
+            lines.append(f"  {name:13s} {'missing':>10s}")
     return "\n".join(lines)
 
 
@@ -71,8 +87,16 @@ def run_command(args) -> int:
         from airpuff_core.dataset import write_netcdf
 
         write_netcdf(result.to_dataset(), args.out)
+    from airpuff_core.calibration import calibrate_metrics
+    from airpuff_core.provenance import model_version
+
+    calibrated, cal, reason = calibrate_metrics(params.to_dict(), result.metrics,
+                                                model_version())
+    calibration = cal.label if cal is not None else f"none: {reason}"
     if args.json:
         out = result.metrics_json()
+        out.update({k: (v if math.isfinite(v) else None) for k, v in calibrated.items()})
+        out["calibration"] = calibration
         sys.stdout.write(json.dumps(out) + "\n")
     else:
         d = result.diagnostics
@@ -81,6 +105,7 @@ def run_command(args) -> int:
               f"dt {d.get('dt_mean_us', float('nan')):.3g} us, wall {wall:.1f} s on "
               f"{d.get('threads')} thread(s)")
         print(format_metrics(result.metrics, result.metric_notes))
+        print(format_calibrated(calibrated, calibration))
         if args.out:
             print(f"wrote {args.out}")
     return 0

@@ -170,3 +170,22 @@ def test_calibrate_bad_input_is_one_line_and_exit_2(args, needle, tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], proc.stderr
     assert not list(tmp_path.glob("*.json"))
+
+
+def test_airpuff_run_prints_the_calibrated_readings_beside_the_raw_ones(coarse_run):
+    from airpuff_core.dataset import params_from_dataset
+
+    m, path = coarse_run
+    ds = open_dataset(path)
+    assert set(CALIBRATED) <= set(m)
+    raw = {k: (math.nan if m[k] is None else m[k]) for k in ("P1", "P2")}
+    values, cal, reason = calibrate_metrics(params_from_dataset(ds).to_dict(), raw,
+                                            ds.attrs["model_version"])
+    if cal is None:
+        assert m["calibration"] == f"none: {reason}" and "airpuff calibrate" in reason
+        assert m["IOPg_cal"] is None and math.isnan(float(ds.IOPg_cal))
+        assert ds.IOPg_cal.attrs["comment"] == reason
+    else:
+        assert m["calibration"] == cal.label
+        assert m["IOPg_cal"] == pytest.approx(values["IOPg_cal"], abs=1e-9)
+        assert float(ds.IOPg_cal) == pytest.approx(values["IOPg_cal"], abs=1e-9)
