@@ -7,12 +7,13 @@ t^{n+1} = t^n + dt:
 - ``FluidStepper`` (``fluid_stepper.py``): the fluid's predictor, independent of the coupling;
 - ``DirichletNeumann`` (``dirichlet_neumann.py``): the iterations k = 1, 2, ... of
   (a) the cornea (``cornea/``, any model of the registry) advanced from its state at t^n with
-      the interface pressure going from p^n to the current estimate p^k, and the air jet
-      (``loads/``) outside, by sub-steps, with its tissue law (``cornea/tissue.py``);
+      the interface pressure going from p^n to the current estimate p^k, and the air pulse
+      of the run's instrument (``loads/``) outside, by sub-steps, with its tissue law (``cornea/tissue.py``);
   (b) its position and velocity imposed on the fluid's interface nodes (Dirichlet), the globe's
       walls moved for it (``globe/``: rigid ones do nothing);
   (c) the fluid's density and interface pressure at t^{n+1}, the cornea's load (Neumann);
-- then the converged state becomes the state at t^{n+1} (``commit``).
+- then the converged state becomes the state at t^{n+1} (``commit``), and a pulse that watches
+  the eye (the ORA's) is told its apex curvature.
 
 The observers of a run (``solver.py``: the energy budget, the blow-up checks, the recorder) are
 called by ``step`` after the coupling, with the state at t^n and the trial state at t^{n+1}
@@ -31,7 +32,7 @@ from .dirichlet_neumann import DirichletNeumann
 from .fluid_stepper import FluidStepper
 from .geometry import build_chamber, chamber_volume
 from .globe import globe_for_run
-from .loads.air_jet import AirJet
+from .loads import pulse_for_run
 from .params import RunParams
 from .step_control import StepControl
 
@@ -51,7 +52,7 @@ class CoupledModel:
         si = self.si = params.si()
         ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
                                           si.R_m, si.r_post_m, si.alpha0_rad)
-        self.jet = AirJet(si)
+        self.jet = pulse_for_run(params, si)
         self.cornea = cornea_for_run(params, ch.phi_cornea)
         self.fluid = FluidStepper(si, ch, params.hyperviscosity_operator, reuse)
         self._start_cornea_at_rest()
@@ -65,6 +66,8 @@ class CoupledModel:
         # fluid pressure on the cornea [Pa], its load at t^n
         self.p_interface = np.empty(self.cornea_nodes.shape[0])
         self.fluid.interface_pressure(self.control.c, self.p_interface)
+        if self.jet.watches_applanation:
+            self.jet.observe(self.t, self.apex_curvature())
         N = self.X.shape[0]
         self._cornea_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_interface_n = np.empty(N)  # interface pressure at t^n with this step's c [Pa]
@@ -145,7 +148,8 @@ class CoupledModel:
 
     def commit(self, dt):
         """The coupled state becomes the state at t^{n+1} (buffers are swapped, not copied); the
-        globe, the interface pressure and the speeds that set the next sound speed follow."""
+        globe, the interface pressure and the speeds that set the next sound speed follow, and
+        a pulse that watches the eye sees the new apex curvature."""
         self.tissue.commit()
         self.cornea.commit()
         n_fit = self.n_apex_fit
@@ -160,6 +164,8 @@ class CoupledModel:
                           self.fluid.rho)
         self.control.end_step(self.fluid.max_speed())
         self.fluid.interface_pressure(c, self.p_interface)
+        if self.jet.watches_applanation:
+            self.jet.observe(self.t, self.apex_curvature())
 
     @property
     def trial_cornea(self):
@@ -223,6 +229,7 @@ class CoupledModel:
             "n_fluid": int(self.chamber.n),
             "n_cornea": int(self.X.shape[0]),
             **self.cornea.diagnostics(),
+            **self.jet.diagnostics(),
             "rest_shape_deviation_mm": self.rest_shape_deviation * 1e3,
             "equilibrium_residual": self.equilibrium_residual,
             "max_moment_condition": self.max_cond,

@@ -75,7 +75,8 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
     i_max = int(np.nanargmax(disp))
     m["DA"] = float(disp[i_max])
     m["t_HC"] = float(time_ms[i_max])
-    m["hc_delay"] = m["t_HC"] - t0_ms
+    # a pulse switched off by the eye that never applanated has no peak time (inf)
+    m["hc_delay"] = m["t_HC"] - t0_ms if math.isfinite(t0_ms) else nan
     vel = hist["apex_velocity"]
     m["v_in_max"] = float(np.nanmax(vel))
     m["v_out_max"] = float(-np.nanmin(vel))

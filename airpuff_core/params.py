@@ -131,6 +131,12 @@ def _p(name, unit, default, low, high, desc, low_inc=False, high_inc=True, si=No
     return ParamSpec(name, unit, default, low, high, low_inc, high_inc, desc, to_si)
 
 
+# The ORA's pulse (docs/model.md section 6): no published rise rate or switch-off delay was
+# found; both are calibrated on the ORA's applanation times (TimeIn, TimeOut of real records)
+# at the normal eye.
+ORA_RISE_RATE = 0.41  # kPa/ms
+ORA_DELAY = 4.9  # ms
+
 # name -> spec.  Ranges are what the model is meant for (clinical and numerical sanity), not what
 # merely avoids a crash; they are documented in the API schema and in docs/model.md.
 PARAMETERS: dict[str, ParamSpec] = {
@@ -141,8 +147,8 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("IOP", "mmHg", 16.0, 0.0, 80.0, "intraocular pressure p0 (reference fluid pressure)",
            si=("p0_Pa", MMHG_PA)),
         _p("thickness", "mm", 0.5, 0.0, 2.0, "corneal thickness h", si=("thickness_m", 1e-3)),
-        _p("pmax", "kPa", 10.0, 0.0, 50.0, "peak air-jet pressure", low_inc=True,
-           si=("pmax_Pa", 1e3)),
+        _p("pmax", "kPa", 10.0, 0.0, 50.0, "peak air-jet pressure, eq. (11) (instrument=paper)",
+           low_inc=True, si=("pmax_Pa", 1e3)),
         _p("R", "mm", 7.0, 3.0, 15.0, "radius of the corneal arc", si=("R_m", 1e-3)),
         _p("r_post", "mm", 2.04, 0.5, 10.0, "radius of the rigid posterior support (sector geometry)",
            si=("r_post_m", 1e-3)),
@@ -154,12 +160,25 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("nu", "1", 0.5, -0.99, 0.99, "Poisson-type coupling of the membrane law", low_inc=True,
            high_inc=True),
         _p("fung_k", "1", 240.0, 0.0, 1000.0, "exponent of the Fung strain energy", low_inc=True),
-        _p("a", "1", 21.5, 0.0, 1000.0, "spatial decay of the air jet, eq. (11)", low_inc=True),
-        _p("b", "1", 25.0, 0.0, 1000.0, "temporal decay of the air jet, eq. (11)"),
-        _p("T", "ms", 30.0, 0.0, 10000.0, "duration scale of the air jet, eq. (11)",
-           si=("T_s", 1e-3)),
-        _p("t0", "ms", 15.0, 0.0, 10000.0, "time of the jet peak, eq. (11)", low_inc=True,
-           si=("t0_s", 1e-3)),
+        _p("a", "1", 21.5, 0.0, 1000.0,
+           "spatial decay of the air pulse exp(-a sin^2 phi), eq. (11) (every instrument)",
+           low_inc=True),
+        _p("b", "1", 25.0, 0.0, 1000.0, "temporal decay of the air jet, eq. (11) (instrument=paper)"),
+        _p("T", "ms", 30.0, 0.0, 10000.0, "duration scale of the air jet, eq. (11) "
+           "(instrument=paper)", si=("T_s", 1e-3)),
+        _p("t0", "ms", 15.0, 0.0, 10000.0, "time of the jet peak, eq. (11) (instrument=paper)",
+           low_inc=True, si=("t0_s", 1e-3)),
+        _p("ora_rise_rate", "kPa/ms", ORA_RISE_RATE, 0.0, 10.0,
+           "rise rate of the ORA's pulse on the apex while its pump runs (instrument=ora; "
+           "calibrated: the first applanation at 8.2 ms at the normal eye, docs/model.md "
+           "section 6)", si=("ora_rise_rate_Pa_per_s", 1e6)),
+        _p("ora_delay", "ms", ORA_DELAY, 0.0, 20.0,
+           "delay of the ORA's pump switch-off after the first applanation it detects "
+           "(instrument=ora; calibrated: the second applanation at 18.9 ms at the normal eye, "
+           "docs/model.md section 6)", low_inc=True, si=("ora_delay_s", 1e-3)),
+        _p("ora_fall_rate", "kPa/ms", ORA_RISE_RATE, 0.0, 10.0,
+           "fall rate of the ORA's pulse on the apex after the switch-off (instrument=ora; "
+           "the rise rate: a symmetric pulse, a choice)", si=("ora_fall_rate_Pa_per_s", 1e6)),
         _p("tait_gamma", "1", 7.0, 1.0, 20.0, "exponent of the equation of state (5)", low_inc=True),
         _p("c0", "m/s", 10.0, 0.0, 1500.0, "base artificial sound speed"),
         _p("c_slope", "1", 20.0, 0.0, 1000.0, "c = c0 + c_slope * v_max", low_inc=True),
@@ -207,6 +226,14 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "model": tuple(MODEL_PRESETS),
     "cornea": CORNEA_CHOICES,
     "limbus": ("clamped", "pinned"),
+    "instrument": ("paper", "ora", "corvis"),
+}
+# the numeric parameters only one instrument's pulse reads (``a`` is read by all); another
+# instrument refuses them away from their defaults
+INSTRUMENT_PARAMETERS = {
+    "paper": ("pmax", "b", "T", "t0"),
+    "ora": ("ora_rise_rate", "ora_delay", "ora_fall_rate"),
+    "corvis": (),
 }
 # None: taken from the ``model`` preset (MODEL_PRESETS) unless given
 CHOICE_DEFAULTS = {
@@ -220,6 +247,7 @@ CHOICE_DEFAULTS = {
     "model": "paper",
     "cornea": None,
     "limbus": "clamped",
+    "instrument": "paper",
 }
 CHOICE_DESCRIPTIONS = {
     "resolution": "node count: coarse (~300 fluid nodes), paper (~1100), fine (~4500)",
@@ -241,6 +269,11 @@ CHOICE_DESCRIPTIONS = {
                 "kirchhoff with 0 (the clinical preset's shell)",
     "limbus": "support of the shell at the limbus (cornea kirchhoff or mindlin): clamped (rotation "
               "fixed) or pinned (free to rotate)",
+    "instrument": "the air pulse: paper (the paper's jet, eq. (11): pmax, b, T, t0), ora (the "
+                  "Ocular Response Analyzer's: rising at ora_rise_rate, switched off ora_delay "
+                  "after the first applanation it detects, falling at ora_fall_rate) or corvis "
+                  "(the Corvis ST's measured profile, peak 12.6 kPa at 18 ms); every one with "
+                  "the spatial decay a",
 }
 
 
@@ -367,6 +400,17 @@ class _RunParamsMethods:
         """Values each in range that do not go together (docs/model.md section 1)."""
         if self.geometry == "sector" and not self.r_post < self.R:
             raise ParameterError("r_post", self.r_post, f"a number in (0.5, R={self.R:g}) mm")
+        for instrument, names in INSTRUMENT_PARAMETERS.items():
+            if instrument == self.instrument:
+                continue
+            for name in names:
+                spec = PARAMETERS[name]
+                if getattr(self, name) != spec.default:
+                    raise ParameterError(
+                        name, getattr(self, name),
+                        f"its default {spec.default:g}{' ' + spec.unit if spec.unit != '1' else ''}"
+                        f" with instrument={self.instrument} (only instrument={instrument} "
+                        f"reads it)")
         if self.layout == "polar" and self.geometry != "sector":
             raise ParameterError("layout", self.layout,
                                  "isotropic with geometry cap (the polar lattice is a sector's)")

@@ -4,7 +4,7 @@
 ``RunResult`` (user units: ms, mm, mmHg, m/s; docs/model.md section 7):
 
 - the histories of ``result.HISTORIES`` on the grid 0, output_interval, ..., t_end, linearly
-  interpolated between solver steps (the air jet, analytic, is eq. (11) on the grid exactly);
+  interpolated between solver steps (the air pulse, analytic, is evaluated on the grid exactly);
 - the apex curvature and fluid pressure at every solver step, from which ``metrics.py`` finds the
   applanations (sign changes of the curvature) by interpolation between steps;
 - the snapshots of ``result.SNAPSHOT_LABELS``: the initial state, the first step after each
@@ -78,7 +78,6 @@ class Recorder:
         si = model.si
         self.budget = budget
         self.t_end = si.t_end_s
-        self.t_jet_peak = model.jet.peak_time  # s
         dt_out = si.output_interval_s
         n_out = int(math.floor(self.t_end / dt_out + 1e-9)) + 1
         self.out_t = np.arange(n_out) * dt_out  # s
@@ -151,7 +150,8 @@ class Recorder:
             self._take("first_applanation", model)
         if kappa_before < 0 <= kappa:
             self._take("second_applanation", model)
-        if self.snapshots["jet_peak"] is None and model.t >= self.t_jet_peak:
+        # the peak of a pulse switched off by the eye (the ORA's) is known once it is passed
+        if self.snapshots["jet_peak"] is None and model.t >= model.jet.peak_time:
             self._take("jet_peak", model)
 
     def _interpolate_histories(self, model, cur):
@@ -174,13 +174,14 @@ class Recorder:
         """The RunResult of the finished run (``wall_s``: its wall time [s])."""
         self._take("end", model)
         hist = self.histories
-        # the jet is analytic: store eq. (11) exactly on the output grid, not interpolated
+        # the pulse is analytic: store it exactly on the output grid, not interpolated (a pulse
+        # switched off by the eye has its switch-off time by now, and is unchanged before it)
         hist["jet_pressure_apex"] = (np.array([model.jet.at_apex(t) for t in self.out_t])
                                      / MMHG_PA)
         metrics, notes, extra = compute_metrics(
             self.out_t * 1e3, hist, np.array(self.step_t), np.array(self.step_kappa),
             np.array(self.step_fluid_p),
-            lambda t_ms: model.jet.at_apex(t_ms * 1e-3) / MMHG_PA, self.t_jet_peak * 1e3,
+            lambda t_ms: model.jet.at_apex(t_ms * 1e-3) / MMHG_PA, model.jet.peak_time * 1e3,
             np.array(self.step_budget))
         diagnostics = self._diagnostics(model, wall_s)
         diagnostics.update(extra)

@@ -157,7 +157,8 @@ def advance_mindlin(X, Y, VX, VY, beta, omega, mass, inertia, phi, L0, S0, A0, p
                     work, Fx, Fy, T, q, viscoelastic, ve_previous, ve_overstress, ve_decay,
                     ve_weight):
     """Velocity-Verlet sub-steps of positions (X, Y, VX, VY) and directors (beta [rad], omega
-    [rad/s]) from t_start to t_start + dt [s], in place; loads and viscoelasticity as in
+    [rad/s]) from t_start to t_start + dt [s], in place; loads (the fluid pressure and the air
+    pulse ``jet`` of ``kernels/air_jet.py``) and viscoelasticity as in
     ``kernels/shell.advance_shell``.  ``inertia``: rotary inertia rho h^3 / 12 A_i [kg m^2] of
     each node.  Apex: x = 0, beta = 0; limbus: fixed position, beta fixed when clamped."""
     n = X.shape[0]

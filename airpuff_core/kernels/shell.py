@@ -28,7 +28,7 @@ forces from the resultants, so a history of N and M (viscoelasticity) can act be
 import numpy as np
 from numba import njit
 
-from .air_jet import air_jet
+from .air_jet import pulse_pressure
 from .membrane import add_pressure_loads, add_segment_forces, fung_resultants, segment_strains
 from .viscoelastic import relax_in_place
 
@@ -211,11 +211,10 @@ def shell_energy(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbu
 @njit(cache=True)
 def net_inside_pressure(phi, p_start, p_end, frac, t, jet, q):
     """q = p_start + frac (p_end - p_start) - p_jet(t, phi) [Pa] on the cornea nodes: the fluid
-    pressure interpolated within the step (frac in [0, 1]) less the air jet (eq. (11),
-    jet = pmax, a, b, T, t0)."""
+    pressure interpolated within the step (frac in [0, 1]) less the air pulse ``jet``
+    (``kernels/air_jet.py``)."""
     for i in range(phi.shape[0]):
-        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - air_jet(t, phi[i], jet[0], jet[1],
-                                                                      jet[2], jet[3], jet[4])
+        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - pulse_pressure(t, phi[i], jet)
 
 
 @njit(cache=True)
@@ -236,7 +235,7 @@ def advance_shell(X, Y, VX, VY, mass, phi, L0, S0, A0, psi_ref, dual_length, x_r
     """Velocity-Verlet sub-steps of the shell from t_start to t_start + dt (in place).
 
     The fluid pressure on the cornea is interpolated linearly from p_start (at t_start) to p_end;
-    the jet (jet = pmax, a, b, T, t0) is evaluated at each sub-step.  Apex: x = 0 (the rotation
+    the air pulse ``jet`` (``kernels/air_jet.py``) is evaluated at each sub-step.  Apex: x = 0 (the rotation
     psi = 0 there is built into the bending strains).  Limbus: fixed position (eq. 10); its
     rotation is fixed or free through the bending strains (``limbus``).
 

@@ -119,6 +119,11 @@ BAD = [
     ({"R": 5.0, "r_post": 6.0}, "r_post"),  # cross-field: the support must lie inside the arc
     ({"cornea": "plate"}, "cornea"),
     ({"model": "clinic"}, "model"),
+    ({"instrument": "nct"}, "instrument"),
+    ({"instrument": "ora", "ora_delay": 25.0}, "ora_delay"),
+    ({"instrument": "ora", "ora_rise_rate": 0.0}, "ora_rise_rate"),
+    ({"instrument": "corvis", "pmax": [12.0]}, "pmax"),  # the paper's jet only
+    ({"ora_delay": 3.0}, "ora_delay"),  # read by instrument=ora only
 ]
 
 

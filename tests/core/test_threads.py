@@ -190,12 +190,15 @@ import numpy as np
 from airpuff_core import RunParams, simulate
 from airpuff_core.threads import max_threads
 assert max_threads() >= 2, max_threads()
-params = RunParams(resolution="coarse", model="clinical", t_end=12.0)
+params = RunParams(resolution="coarse", model="clinical", instrument="ora", t_end=14.0)
 one = simulate(params, threads=1).to_dataset()
 two = simulate(params, threads=2).to_dataset()
 assert one.attrs["solver_threads"] == 1 and two.attrs["solver_threads"] == 2
+assert one.attrs["solver_pulse_switch_off_ms"] < 14.0, one.attrs["solver_pulse_switch_off_ms"]
 differ = [name for name in one.data_vars
           if not np.array_equal(one[name].values, two[name].values, equal_nan=True)]
+differ += [name for name in ("solver_pulse_applanation_detected_ms", "solver_pulse_switch_off_ms")
+           if one.attrs[name] != two.attrs[name]]
 print("differ:", differ)
 sys.exit(1 if differ else 0)
 """
@@ -204,7 +207,8 @@ sys.exit(1 if differ else 0)
 @pytest.mark.slow
 def test_a_run_does_not_depend_on_the_threads():
     """A coarse clinical run (shear shell, viscoelasticity, compliant globe, consistent
-    hyperviscosity) on one thread and on two: every history, snapshot and metric the same.  In a
+    hyperviscosity) under the ORA's pulse, switched off by the applanation it detects, on one
+    thread and on two: every history, snapshot and metric and the switch-off the same.  In a
     process of its own with two threads allowed (this one keeps to one: tests/conftest.py)."""
     from airpuff_core.threads import _fast_layer_available
 

@@ -1,0 +1,69 @@
+"""The Ocular Response Analyzer's air pulse (``instrument = ora``; docs/model.md section 6).
+
+The plenum pressure rises while the pump runs, and the pump is switched off a fixed delay
+after the instrument detects the first applanation; the pressure then falls.  Here the pulse
+on the cornea is (SI)
+
+    p_a(t, phi) = A(t) exp(-a sin^2 phi),
+    A(t) = r_rise t                                    for t <= t_off,
+    A(t) = max(0, r_rise t_off - r_fall (t - t_off))   for t >  t_off,
+    t_off = t_A1 + delay,
+
+with t_A1 the first applanation detected in the run itself (the apex curvature turning from
+convex to concave between two committed steps, interpolated linearly as ``metrics.py`` does).
+The peak r_rise t_off depends on the eye: an eye that applanates later sees a higher peak.
+The detection uses the committed states only, so it is the same for any number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..kernels.air_jet import RAMP, SWITCH_OFF
+from ..params import MMHG_PA
+from .pulse import AirPulse, first_crossing_time
+
+
+class OraPulse(AirPulse):
+    """The ORA's pulse of a run (``SIParams`` si: a, ora_rise_rate_Pa_per_s, ora_delay_s,
+    ora_fall_rate_Pa_per_s)."""
+
+    name = "ora"
+    watches_applanation = True
+
+    def __init__(self, si):
+        # (RAMP, a, t_off [s], r_fall [Pa/s], t_on [s], r_rise [Pa/s]); t_off is set online
+        self.kernel_args = np.array([RAMP, si.a, math.inf, si.ora_fall_rate_Pa_per_s, 0.0,
+                                     si.ora_rise_rate_Pa_per_s])
+        self.delay = si.ora_delay_s
+        self.detected_applanation = math.nan  # s, t_A1 as the instrument saw it
+        self._last = None  # (t [s], apex curvature [1/m]) of the last committed state
+
+    @property
+    def switch_off(self):
+        """t_off [s]: inf until the first applanation is detected."""
+        return float(self.kernel_args[SWITCH_OFF])
+
+    @property
+    def peak_time(self):
+        return self.switch_off
+
+    def observe(self, t, kappa):
+        """Detect the first applanation between the last committed state and this one; the
+        pump is switched off ``delay`` after it, and no earlier than now (a delay shorter than
+        the step already passed: the pulse has risen until now)."""
+        last, self._last = self._last, (t, kappa)
+        if last is None or math.isfinite(self.switch_off):
+            return
+        t_A1 = first_crossing_time(last[0], last[1], t, kappa)
+        if t_A1 is not None:
+            self.detected_applanation = t_A1
+            self.kernel_args[SWITCH_OFF] = max(t_A1 + self.delay, t)
+
+    def diagnostics(self):
+        return {"pulse_applanation_detected_ms": self.detected_applanation * 1e3,
+                "pulse_switch_off_ms": self.switch_off * 1e3,
+                "pulse_peak_apex_mmHg": (self.at_apex(self.switch_off) / MMHG_PA
+                                         if math.isfinite(self.switch_off) else math.nan)}

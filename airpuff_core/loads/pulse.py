@@ -1,0 +1,53 @@
+"""What every instrument's air pulse offers the run (SI units): its kernel arguments, its
+pressure on the cornea's nodes and at the apex, its peak time, and its online state.
+
+The cornea kernels evaluate the pulse inside their sub-steps from ``kernel_args``
+(``kernels/air_jet.py``); the start at rest, the energy budget, the apex force budget and the
+recorder use the methods here.  A pulse that is switched off by what happens to the eye
+(``watches_applanation``) is told the apex curvature after every committed step
+(``CoupledModel.commit``) and sets its switch-off time in ``kernel_args`` itself.
+"""
+
+from __future__ import annotations
+
+from ..kernels.air_jet import jet_pressures, pulse_pressure
+
+
+class AirPulse:
+    """The interface of an instrument's pulse; ``kernel_args`` is set by each kind."""
+
+    name = ""
+    kernel_args = None
+    # True: ``observe(t, kappa)`` after every committed step
+    watches_applanation = False
+
+    def pressures(self, t, phi, out):
+        """out[k] = p_a(t, phi[k]) [Pa] at time t [s] on the nodes of reference angles phi."""
+        jet_pressures(t, phi, self.kernel_args, out)
+
+    def at_apex(self, t):
+        """p_a(t, 0) [Pa] at time t [s]."""
+        return pulse_pressure(t, 0.0, self.kernel_args)
+
+    @property
+    def peak_time(self):
+        """The time [s] of the pulse's peak at the apex (inf while it is not known yet)."""
+        raise NotImplementedError
+
+    def observe(self, t, kappa):
+        """The apex curvature kappa [1/m] of the state committed at time t [s]."""
+
+    def diagnostics(self) -> dict:
+        """What the run reports of its pulse (user units)."""
+        return {}
+
+
+def first_crossing_time(t_before, kappa_before, t, kappa):
+    """The time [s] where the apex curvature turns from convex to flat or concave between two
+    committed steps (kappa_before > 0 >= kappa), linearly interpolated as ``metrics.py`` does;
+    None when it does not."""
+    if kappa_before > 0.0 >= kappa:
+        s = kappa_before / (kappa_before - kappa)
+        return t_before + s * (t - t_before)
+    return None
+

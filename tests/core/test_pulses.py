@@ -1,0 +1,150 @@
+"""The instruments' air pulses (docs/model.md section 6): the kernels against their analytic
+definitions written here, the ORA's switch-off at the applanation it detects in a coarse run,
+and the bad values of the pulses' parameters named with their range."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from airpuff_core import ParameterError, RunParams, simulate
+from airpuff_core.kernels.air_jet import RAMP, SWITCH_OFF, TABLE, jet_pressures, pulse_pressure
+from airpuff_core.loads import pulse_for_run
+from airpuff_core.loads.corvis import CORVIS_APEX_MMHG, CORVIS_START_MS, CORVIS_STEP_MS
+from airpuff_core.params import MMHG_PA
+
+PHI = np.linspace(0.0, math.pi / 3, 7)
+TIMES = np.linspace(0.0, 0.035, 71)
+
+
+def _pulse(instrument, **options):
+    params = RunParams(instrument=instrument, **options)
+    return pulse_for_run(params, params.si())
+
+
+def test_paper_pulse_is_eq_11():
+    jet = _pulse("paper", pmax=8.0, a=30.0, b=20.0, T=25.0, t0=12.0)
+    out = np.empty_like(PHI)
+    for t in TIMES:
+        jet.pressures(t, PHI, out)
+        expected = 8e3 * np.exp(-30.0 * np.sin(PHI) ** 2) * np.exp(-20.0 * (t - 0.012) ** 2
+                                                                   / 0.025 ** 2)
+        np.testing.assert_allclose(out, expected, rtol=1e-14, atol=0.0)
+    assert jet.peak_time == 0.012 and not jet.watches_applanation
+
+
+def test_ora_pulse_rises_then_falls_from_its_switch_off():
+    """A(t) = r_rise t up to t_off, then r_rise t_off - r_fall (t - t_off) down to 0, times
+    exp(-a sin^2 phi); without a switch-off it keeps rising."""
+    jet = _pulse("ora", ora_rise_rate=0.5, ora_fall_rate=0.8, ora_delay=2.0, a=15.0)
+    rise, fall = 0.5e6, 0.8e6  # Pa/s
+    spatial = np.exp(-15.0 * np.sin(PHI) ** 2)
+    out = np.empty_like(PHI)
+    for t in TIMES:
+        jet.pressures(t, PHI, out)
+        np.testing.assert_allclose(out, rise * t * spatial, rtol=1e-14, atol=1e-9)
+    t_off = 0.011
+    jet.kernel_args[SWITCH_OFF] = t_off
+    for t in TIMES:
+        amplitude = rise * t if t <= t_off else max(0.0, rise * t_off - fall * (t - t_off))
+        jet.pressures(t, PHI, out)
+        np.testing.assert_allclose(out, amplitude * spatial, rtol=1e-13, atol=1e-9)
+    assert jet.at_apex(t_off) == pytest.approx(rise * t_off, rel=1e-15)
+    assert jet.at_apex(t_off + rise * t_off / fall + 1e-6) == 0.0
+
+
+def test_ora_switch_off_is_set_once_at_the_detected_applanation_plus_delay():
+    jet = _pulse("ora", ora_delay=3.0)
+    jet.observe(0.0, 100.0)
+    jet.observe(0.001, 60.0)
+    assert math.isinf(jet.peak_time)
+    jet.observe(0.002, -40.0)  # convex -> concave between 1 and 2 ms: at 1.6 ms
+    assert jet.detected_applanation == pytest.approx(0.0016, rel=1e-12)
+    assert jet.peak_time == pytest.approx(0.0046, rel=1e-12)
+    jet.observe(0.003, 10.0)
+    jet.observe(0.004, -10.0)  # a later crossing does not move it
+    assert jet.peak_time == pytest.approx(0.0046, rel=1e-12)
+    late = _pulse("ora", ora_delay=0.0)
+    late.observe(0.001, 60.0)
+    late.observe(0.002, -40.0)
+    assert late.peak_time == 0.002  # a delay already passed: switched off now
+
+
+def test_corvis_pulse_is_its_table_interpolated_linearly():
+    jet = _pulse("corvis", a=21.5)
+    start, step = CORVIS_START_MS * 1e-3, CORVIS_STEP_MS * 1e-3
+    samples = np.asarray(CORVIS_APEX_MMHG) * MMHG_PA
+    for k, value in enumerate(samples):
+        assert jet.at_apex(start + k * step) == pytest.approx(value, rel=1e-12, abs=1e-9)
+    for k in range(len(samples) - 1):
+        mid = start + (k + 0.5) * step
+        assert jet.at_apex(mid) == pytest.approx(0.5 * (samples[k] + samples[k + 1]), rel=1e-12,
+                                                 abs=1e-9)
+    assert jet.at_apex(start - 1e-4) == 0.0 and jet.at_apex(0.0) == 0.0
+    assert jet.at_apex(start + len(samples) * step) == 0.0
+    out = np.empty_like(PHI)
+    jet.pressures(0.016, PHI, out)
+    np.testing.assert_allclose(out, jet.at_apex(0.016) * np.exp(-21.5 * np.sin(PHI) ** 2),
+                               rtol=1e-14)
+    assert jet.peak_time == pytest.approx(0.018, rel=1e-12)  # 94.21 mmHg
+    assert jet.at_apex(jet.peak_time) / MMHG_PA == pytest.approx(94.21, rel=1e-12)
+
+
+def test_a_table_pulse_with_a_switch_off_falls_from_it():
+    """The kernel's general form: any table switched off at t_off falls at r_fall."""
+    jet = np.array([TABLE, 0.0, 0.004, 1e6, 0.0, 0.002, 0.0, 1000.0, 3000.0, 0.0])
+    assert pulse_pressure(0.003, 0.0, jet) == pytest.approx(2000.0, rel=1e-14)
+    assert pulse_pressure(0.004, 0.0, jet) == pytest.approx(3000.0, rel=1e-14)
+    assert pulse_pressure(0.005, 0.0, jet) == pytest.approx(2000.0, rel=1e-12)
+    assert pulse_pressure(0.010, 0.0, jet) == 0.0
+    ramp = np.array([RAMP, 0.0, math.inf, 0.0, 0.001, 2e6])
+    out = np.empty(2)
+    jet_pressures(0.0005, np.zeros(2), ramp, out)
+    assert list(out) == [0.0, 0.0]  # before its onset
+
+
+def test_ora_run_switches_off_at_its_detected_applanation_plus_delay():
+    """A coarse run under the ORA's pulse: the pump is switched off at the first applanation
+    the run reports (t_A1, from the curvature history as metrics.py finds it) plus the delay,
+    and the stored pulse at the apex is the ramp up to it and the fall after it."""
+    delay = 2.0
+    result = simulate(RunParams(instrument="ora", ora_delay=delay, t_end=16.0))
+    diag, m = result.diagnostics, result.metrics
+    assert diag["pulse_applanation_detected_ms"] == pytest.approx(m["t_A1"], abs=1e-9)
+    t_off = diag["pulse_switch_off_ms"]
+    assert t_off == pytest.approx(m["t_A1"] + delay, abs=1e-9)
+    rise = fall = 0.41e6 * 1e-3 / MMHG_PA  # mmHg/ms, the defaults
+    t = result.time
+    expected = np.where(t <= t_off, rise * t, np.maximum(0.0, rise * t_off - fall * (t - t_off)))
+    np.testing.assert_allclose(result.histories["jet_pressure_apex"], expected, rtol=1e-12,
+                               atol=1e-12)
+    assert diag["pulse_peak_apex_mmHg"] == pytest.approx(rise * t_off, rel=1e-12)
+    assert m["P1"] == pytest.approx(rise * m["t_A1"], rel=1e-12)
+
+
+@pytest.mark.parametrize("options,name,accepted", [
+    ({"instrument": "nct"}, "instrument", "one of paper, ora, corvis"),
+    ({"instrument": "ora", "ora_delay": 21.0}, "ora_delay", "[0, 20] ms"),
+    ({"instrument": "ora", "ora_rise_rate": 0.0}, "ora_rise_rate", "(0, 10] kPa/ms"),
+    ({"instrument": "ora", "ora_fall_rate": -1.0}, "ora_fall_rate", "(0, 10] kPa/ms"),
+    ({"instrument": "corvis", "pmax": 12.0}, "pmax", "instrument=paper"),
+    ({"instrument": "ora", "T": 20.0}, "T", "instrument=paper"),
+    ({"ora_delay": 3.0}, "ora_delay", "instrument=ora"),
+])
+def test_bad_pulse_parameters_name_the_parameter_and_the_range(options, name, accepted):
+    with pytest.raises(ParameterError) as err:
+        RunParams(**options)
+    assert err.value.name == name and accepted in str(err.value), str(err.value)
+
+
+def test_cli_rejects_a_bad_instrument_with_one_line():
+    for args, name in ((["--instrument", "nct"], "instrument"),
+                       (["--instrument", "ora", "--ora-delay", "30"], "ora_delay")):
+        proc = subprocess.run([sys.executable, "-m", "api.cli", "run", *args],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2, proc.stderr
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and name.replace("_", "") in lines[0].replace("-", "").replace(
+            "_", ""), proc.stderr
