@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import shlex
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -24,7 +23,7 @@ import numpy as np
 
 from airpuff_core.atomic import atomic_write
 from airpuff_core.calibration import (FORMAT, REFERENCE_EYE, apply_coefficients,
-                                      calibration_dir, file_name, fit_coefficients)
+                                      calibration_dir, file_name, fit_coefficients, make_command)
 from airpuff_core.params import CHOICES, ParameterError, RunParams
 from airpuff_core.provenance import model_version
 from airpuff_core.version import __version__
@@ -228,6 +227,16 @@ def write_calibration(data: dict[str, Any], directory: str | Path | None = None)
     return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
 
 
-def command_line(argv: list[str]) -> str:
-    """The one line that makes the calibration again."""
-    return " ".join(["airpuff", "calibrate"] + [shlex.quote(a) for a in argv])
+def command_line(spec: SweepSpec, check: bool) -> str:
+    """The one line that makes the calibration of the reference sweep ``spec`` again: the
+    instrument, resolution, model and the options that differ from the preset's
+    (``make_command``), the IOP values, and the reference eye where it is not
+    ``REFERENCE_EYE`` (where the sweeps' files go does not change the calibration)."""
+    params = spec.points()[0].to_dict()
+    words = [make_command(params), "--IOP", ",".join(f"{v:g}" for v in spec.IOP)]
+    for name, default in REFERENCE_EYE.items():
+        if params[name] != default:
+            words += [f"--{name}", f"{params[name]:g}"]
+    if check:
+        words.append("--check")
+    return " ".join(words)

@@ -116,7 +116,7 @@ def calibrate_command(args) -> int:
     run = run_in_process if args.in_process else run_on_dask(workers)
     try:
         readings = run(spec, out / "reference")
-        data = make_calibration(instrument, spec, readings, command_line(sys.argv[2:]))
+        data = make_calibration(instrument, spec, readings, command_line(spec, args.check))
     except ValueError as err:
         sys.stderr.write(f"{PROG}: {err}\n")
         return 1

@@ -189,3 +189,16 @@ def test_airpuff_run_prints_the_calibrated_readings_beside_the_raw_ones(coarse_r
         assert m["calibration"] == cal.label
         assert m["IOPg_cal"] == pytest.approx(values["IOPg_cal"], abs=1e-9)
         assert float(ds.IOPg_cal) == pytest.approx(values["IOPg_cal"], abs=1e-9)
+
+
+def test_the_calibration_file_records_the_one_line_that_makes_it_again():
+    from sweep.calibration import command_line, reference_spec
+
+    spec = reference_spec("paper", [10.0, 20.0], {"model": "clinical", "resolution": "coarse"})
+    assert command_line(spec, True) == ("airpuff calibrate --instrument paper --resolution coarse "
+                                        "--model clinical --IOP 10,20 --check")
+    spec = reference_spec("paper", [10.0, 20.0], {"model": "clinical", "resolution": "coarse",
+                                                  "c0": 20}, {"thickness": 0.54}, pmax=7.0)
+    assert command_line(spec, False) == ("airpuff calibrate --instrument paper --resolution "
+                                         "coarse --model clinical --pmax 7 --c0 20 --IOP 10,20 "
+                                         "--thickness 0.54")
