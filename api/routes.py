@@ -141,7 +141,7 @@ def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = D
     try:
         table = SweepTable.from_records(json.loads(row["spec_json"]),
                                         point_records(con, body.job_id))
-        est = identify(table, measurement, body.thickness, body.pmax)
+        est = identify(table, measurement, body.thickness, body.pmax, body.instrument)
     except IdentifyError as err:
         loc = ["body", "measurement", err.field] if err.field in MEASURABLE \
             else ["body", err.field]

@@ -236,6 +236,9 @@ class IdentifyRequest(BaseModel):
                                   "between two grid values the metrics are interpolated linearly")
     pmax: Optional[_number(PARAMETERS["pmax"])] = Field(  # type: ignore[valid-type]
         default=None, description="peak jet pressure [kPa]; needed if the sweep has several")
+    instrument: Optional[Literal[CHOICES["instrument"]]] = Field(  # type: ignore[valid-type]
+        default=None, description="the instrument the measurement was taken with: it must be the "
+                                  "one whose pulse the job was computed with (default: the job's)")
     measurement: Measurement = Field(  # type: ignore[valid-type]
         description="any non-empty subset of " + ", ".join(MEASURABLE))
     refine: Annotated[bool, Strict()] = Field(

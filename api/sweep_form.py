@@ -25,8 +25,9 @@ from airpuff_core.params import (
 
 from .html import esc
 
-# The choice shown next to the axes; the others sit with the model options.
-MAIN_CHOICES = ("resolution",)
+# The choices shown next to the axes (the node count and the instrument whose pulse is
+# applied); the others sit with the model options.
+MAIN_CHOICES = ("resolution", "instrument")
 GENERAL = "_general"  # errors that belong to no single field (e.g. the grid is too large)
 
 

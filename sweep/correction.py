@@ -381,6 +381,12 @@ def fit_correction(table: SweepTable, instrument: str, max_degree: int = MAX_DEG
     Raises CorrectionError for a sweep that cannot give a formula (a reading constant over the
     sweep, too few usable points)."""
     readings = _instrument(instrument)
+    pulse = str(table.run_options.get("instrument", "paper"))
+    if pulse != "paper" and pulse != instrument:
+        # the readings of one instrument on a sweep under another's pulse mix two instruments;
+        # the paper's jet stands for either (as before there was a choice of pulse)
+        raise CorrectionError("instrument", f"invalid instrument={instrument!r}: the sweep was "
+                                            f"computed with the {pulse} pulse: accepted {pulse}")
     if not 1 <= max_degree <= 4:
         raise CorrectionError("max-degree", f"invalid max-degree={max_degree!r}: accepted 1 to 4")
     if not 2 <= folds <= 20:

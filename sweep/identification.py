@@ -306,6 +306,7 @@ class Estimate:
     interpolation_sigma: dict[str, float]
     thickness: float
     pmax: float
+    instrument: str
     sweep_IOP: tuple[float, float]
     sweep_E0: tuple[float, float]
     n_not_ok: int
@@ -329,7 +330,7 @@ class Estimate:
             "measurement": {k: {"value": v, "sigma": s} for k, (v, s) in self.measurement.items()},
             "model_at_estimate": {k: r(v) for k, v in self.model_at_estimate.items()},
             "interpolation_sigma": {k: r(v) for k, v in self.interpolation_sigma.items()},
-            "thickness": self.thickness, "pmax": self.pmax,
+            "thickness": self.thickness, "pmax": self.pmax, "instrument": self.instrument,
             "sweep_range": {"IOP": list(self.sweep_IOP), "E0": list(self.sweep_E0)},
             "points_not_ok": self.n_not_ok,
             "method": self.method, "notes": list(self.notes),
@@ -380,9 +381,28 @@ def _at_edges(inside: np.ndarray, axis: np.ndarray) -> tuple[bool, bool]:
     return bool(inside.min() <= axis[0] + tol), bool(inside.max() >= axis[-1] - tol)
 
 
+def sweep_instrument(table: SweepTable, instrument: str | None = None) -> str:
+    """The instrument whose pulse the sweep was computed with (``paper`` for a sweep made before
+    there was a choice); ``instrument``, the one the measurement was taken with, must be it."""
+    from airpuff_core.params import CHOICES
+
+    swept = str(table.run_options.get("instrument", "paper"))
+    if instrument is not None and instrument not in CHOICES["instrument"]:
+        raise IdentifyError("instrument", f"invalid instrument={instrument!r}: accepted one of "
+                                          + ", ".join(CHOICES["instrument"]))
+    if instrument is not None and instrument != swept:
+        raise IdentifyError("instrument", f"instrument={instrument} but the sweep was computed "
+                                          f"with the {swept} pulse: accepted {swept} (a "
+                                          f"measurement of the {instrument} needs a sweep with "
+                                          f"instrument={instrument})")
+    return swept
+
+
 def identify(table: SweepTable, measurement: Mapping[str, Any], thickness: float | None = None,
-             pmax: float | None = None) -> Estimate:
-    """Estimate (IOP, E0) and their 68 % region from the sweep; raises IdentifyError."""
+             pmax: float | None = None, instrument: str | None = None) -> Estimate:
+    """Estimate (IOP, E0) and their 68 % region from the sweep; raises IdentifyError.
+    ``instrument``: the instrument of the measurement, checked against the sweep's."""
+    swept = sweep_instrument(table, instrument)
     meas = make_measurement(measurement)
     sl = take_slice(table, thickness, pmax)
     if sl.E0.size < 2 or sl.IOP.size < 2:
@@ -440,7 +460,7 @@ def identify(table: SweepTable, measurement: Mapping[str, Any], thickness: float
         E0_interval=(float(e_in.min()), float(e_in.max())),
         IOP_identified=p_ident, E0_identified=e_ident, chi2_min=cmin, consistent=consistent,
         measurement=meas, model_at_estimate={m: float(models[m][k]) for m in meas},
-        interpolation_sigma=interp_sigma, thickness=sl.thickness, pmax=sl.pmax,
+        interpolation_sigma=interp_sigma, thickness=sl.thickness, pmax=sl.pmax, instrument=swept,
         sweep_IOP=(float(sl.IOP[0]), float(sl.IOP[-1])), sweep_E0=(float(sl.E0[0]), float(sl.E0[-1])),
         n_not_ok=table.n_not_ok, notes=notes)
 
@@ -575,7 +595,7 @@ def refine(table: SweepTable, est: Estimate, max_runs: int = 7,
         consistent=cx <= threshold, measurement=meas,
         model_at_estimate={m: float(v) for m, v in zip(names, fx)},
         interpolation_sigma={m: 0.0 for m in names}, thickness=est.thickness, pmax=est.pmax,
-        sweep_IOP=est.sweep_IOP, sweep_E0=est.sweep_E0, n_not_ok=est.n_not_ok, notes=notes,
+        instrument=est.instrument, sweep_IOP=est.sweep_IOP, sweep_E0=est.sweep_E0, n_not_ok=est.n_not_ok, notes=notes,
         method=f"refined with {runs} direct solver runs (Gauss-Newton, forward differences)",
         refined={"grid_estimate": {"IOP": est.IOP, "E0": est.E0,
                                    "IOP_interval": list(est.IOP_interval),

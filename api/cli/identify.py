@@ -12,7 +12,7 @@ import json
 import re
 import sys
 
-from airpuff_core.params import parse_decimal, parse_whole
+from airpuff_core.params import CHOICES, parse_decimal, parse_whole
 from sweep.identification import (DEFAULT_SIGMA, MEASURABLE, UNITS, IdentifyError, SweepTable,
                                   identify, refine)
 
@@ -58,6 +58,9 @@ def add_identify_parser(sub) -> None:
                         "grid values the metrics are interpolated linearly")
     p.add_argument("--pmax", default=None, metavar="kPa",
                    help="peak jet pressure [kPa]; needed if the sweep has several")
+    p.add_argument("--instrument", default=None, metavar="|".join(CHOICES["instrument"]),
+                   help="the instrument the measurement was taken with; it must be the one "
+                        "whose pulse the sweep was computed with (default: the sweep's)")
     for name in MEASURABLE:
         flags = ["--" + name] + (["--" + name.replace("_", "-")] if "_" in name else [])
         p.add_argument(*flags, dest=name, default=None, metavar="VALUE[+-SIGMA]",
@@ -94,7 +97,7 @@ def identify_command(args) -> int:
         thickness = _number("thickness", args.thickness)
         pmax = _number("pmax", args.pmax)
         table = SweepTable.from_netcdf(args.sweep)
-        est = identify(table, meas, thickness, pmax)
+        est = identify(table, meas, thickness, pmax, args.instrument)
         if args.refine:
             progress = None if args.json else (lambda s: print(s, file=sys.stderr, flush=True))
             est = refine(table, est, max_runs=max_runs, progress=progress)
@@ -108,7 +111,8 @@ def identify_command(args) -> int:
         print(json.dumps(est.to_dict()))
         return 0
     d = est.to_dict()
-    print(f"method: {est.method}; thickness {est.thickness:g} mm, pmax {est.pmax:g} kPa")
+    print(f"method: {est.method}; instrument {est.instrument}, thickness {est.thickness:g} mm, "
+          f"pmax {est.pmax:g} kPa")
     print("measurement: " + ", ".join(f"{k} = {v:g} +- {s:g} {UNITS[k]}"
                                       for k, (v, s) in est.measurement.items()))
     print(f"IOP = {est.IOP:.2f} mmHg   68 % interval {_fmt_interval(est.IOP_interval, 2)}"

@@ -120,6 +120,17 @@ def test_fit_correction_refuses_a_sweep_without_cct_variation():
         fit_correction(one, "ora")
 
 
+def test_fit_correction_takes_the_readings_of_the_sweeps_pulse():
+    """A sweep under the ORA's pulse gives the ORA's readings only; the paper's jet either."""
+    t = _linear_table()
+    under = lambda pulse: SweepTable(t.E0, t.IOP, t.thickness, t.pmax, t.metrics, 0,  # noqa: E731
+                                     {"instrument": pulse}, "test", t.ok)
+    assert fit_correction(under("ora"), "ora")["instrument"] == "ora"
+    with pytest.raises(CorrectionError, match="computed with the corvis pulse: accepted corvis") as err:
+        fit_correction(under("corvis"), "ora")
+    assert err.value.field == "instrument"
+
+
 CSV_TEXT = """id,P1,P2,CCT,P1_sigma
 a,21,17,540,0.5
 b,60,17,540,

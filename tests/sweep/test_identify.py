@@ -114,6 +114,7 @@ def test_thickness_outside_sweep_is_refused(table):
 @pytest.mark.parametrize("args, word", [
     (["--P1", "abc"], "--P1"), ([], "no measured quantity"), (["--P1", "15+-0"], "sigma"),
     (["--P1", "15", "--pmax", "x"], "--pmax"), (["--P1", "15", "--refine-runs", "20"], "refine-runs"),
+    (["--P1", "15", "--instrument", "ora"], "accepted paper"),  # the sweep's is the paper's jet
 ])
 def test_cli_bad_input_is_one_line(id_sweep, args, word):
     proc = airpuff("identify", "--sweep", str(id_sweep[0]), *args)
@@ -163,9 +164,13 @@ def test_http_identify_on_a_finished_job(id_sweep, truths, tmp_path):
             assert r.status_code == 202, r.text
             job = r.json()["id"]
             assert wait_job(c, job, timeout=120)["status"] == "done"
+            r = c.post("/identify", json={**body, "job_id": job, "instrument": "ora"})
+            assert r.status_code == 422, r.text
+            assert any(e["field"] == "instrument" for e in r.json()["detail"]), r.text
             r = c.post("/identify", json={**body, "job_id": job})
             assert r.status_code == 200, r.text
             d = r.json()
+            assert d["instrument"] == "paper"
             assert abs(d["IOP"] - iop) <= IOP_TOL and d["job_id"] == job
             assert d["E0_interval"][0] <= e0 <= d["E0_interval"][1]
             # the same answer as the CLI's interpolation on the job's sweep.nc

@@ -88,6 +88,9 @@ def test_axes_default_to_parameter_defaults():
     ({"options": {"resolution": "ultra"}}, "resolution"),
     ({"options": {"nonsense": 1}}, "nonsense"),
     ({"options": {"r_post": 8.0}}, "r_post"),  # cross-field check of every point: r_post < R
+    ({"options": {"instrument": "nct"}}, "instrument"),
+    ({"pmax": [10.0, 12.0], "options": {"instrument": "corvis"}}, "pmax"),  # the paper's only
+    ({"options": {"instrument": "ora", "ora_delay": -1}}, "ora_delay"),
 ])
 def test_validate_names_the_bad_field(kwargs, field):
     with pytest.raises(ParameterError) as info:
@@ -124,6 +127,20 @@ def test_point_key_of_the_cornea_options():
     assert len(keys) == 5
 
 
+def test_points_are_keyed_by_the_instrument_and_its_options():
+    """The same grid under each instrument's pulse: every point a key of its own, and the
+    ORA's delay in the key of the ORA's points."""
+    grids = [SweepSpec(E0=[0.4, 0.6], IOP=[12.0, 16.0], options={"instrument": name})
+             for name in ("paper", "ora", "corvis")]
+    grids.append(SweepSpec(E0=[0.4, 0.6], IOP=[12.0, 16.0],
+                           options={"instrument": "ora", "ora_delay": 3.0}))
+    keys = [point_key(p) for spec in grids for p in spec.validated_points()]
+    assert len(set(keys)) == len(keys) == 16
+    assert [p.instrument for p in grids[2].validated_points()] == ["corvis"] * 4
+    again = SweepSpec.from_dict(json.loads(json.dumps(grids[3].to_dict())))
+    assert [point_key(p) for p in again.points()] == keys[12:]
+
+
 # -- the command line: bad input is one line and exit code 2, before any cluster starts ------------
 @pytest.mark.parametrize("argv,needle", [
     (["--E0", "abc"], "E0"),
@@ -133,6 +150,8 @@ def test_point_key_of_the_cornea_options():
     (["--thickness", "3"], "thickness"),
     (["--pmax", "1,1"], "pmax"),
     (["--resolution", "huge"], "resolution"),
+    (["--instrument", "nct"], "instrument"),
+    (["--instrument", "corvis", "--pmax", "8,10"], "pmax"),
     (["--t-end", "-2"], "t_end"),
     (["--workers", "0"], "workers"),
     (["--workers", "two"], "workers"),
