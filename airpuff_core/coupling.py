@@ -29,7 +29,7 @@ from .cornea.build import cornea_for_run
 from .cornea.reference import static_equilibrium
 from .cornea.tissue import tissue_for_run
 from .dirichlet_neumann import DirichletNeumann
-from .fluid_stepper import FluidStepper
+from .fluid_stepper import STRAIN_LIMIT, FluidStepper
 from .geometry import build_chamber, chamber_volume
 from .globe import globe_for_run
 from .loads import pulse_for_run
@@ -44,17 +44,19 @@ class CoupledModel:
 
     The cornea's state, SI units: nodes ``X, Y`` [m], ``VX, VY`` [m/s], apex first (the fluid's
     nodes ``cornea_nodes`` carry it); the fluid's is ``fluid`` (``x, y, vx, vy, rho`` are
-    its arrays); time ``t`` [s].  ``reuse``: see ``FluidStepper``.
+    its arrays); time ``t`` [s].  ``reuse`` and ``strain_limit`` (default
+    ``fluid_stepper.STRAIN_LIMIT``): see ``FluidStepper``.
     """
 
-    def __init__(self, params: RunParams, reuse: bool = True):
+    def __init__(self, params: RunParams, reuse: bool = True, strain_limit=None):
         self.params = params
         si = self.si = params.si()
         ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
                                           si.R_m, si.r_post_m, si.alpha0_rad)
         self.jet = pulse_for_run(params, si)
         self.cornea = cornea_for_run(params, ch.phi_cornea)
-        self.fluid = FluidStepper(si, ch, params.hyperviscosity_operator, reuse)
+        self.fluid = FluidStepper(si, ch, params.hyperviscosity_operator, reuse,
+                                  STRAIN_LIMIT if strain_limit is None else strain_limit)
         self._start_cornea_at_rest()
         self.globe = globe_for_run(params, si, ch, self.X, self.Y, self.fluid.mass)
         self.globe.start(self.fluid.density_volume(), self.chamber_volume())
@@ -236,6 +238,8 @@ class CoupledModel:
             "hyperviscous_radius_per_gamma_c": self.control.hv_radius_max,
             "mass_kg": float(self.fluid.mass.sum()),
             "neighbour_searches": self.fluid.neighbours.searches,
+            "operator_builds": self.fluid.operator_builds,
+            "operator_strain_limit": self.fluid.strain_limit,
             "apex_fit_nodes": self.n_apex_fit,
             "acoustic_cfl": self.si.cfl,
         }

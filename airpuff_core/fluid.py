@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SimulationError
-from .kernels.mfpm import hyperviscous_term, mfpm_derivatives
+from .kernels.mfpm import hyperviscous_term, mapped_derivatives, mfpm_derivatives
 from .kernels.neighbours import build_neighbours, max_squared_move
 from .kernels.nodes import axis_halved_area
 from .threads import chunks
@@ -84,12 +84,14 @@ class Operators:
     """MFPM derivatives at given positions, and the Brookshaw Laplacian of the last full build with
     ``laplacian=True``, on a shared neighbour table."""
 
-    def __init__(self, h, area, kappa, table: NeighbourTable | None = None, consistent=False):
+    def __init__(self, h, area, kappa, table: NeighbourTable | None = None, consistent=False,
+                 keep_operator=False):
         """h: node spacing [m], area: node area in the meridian plane [m^2], kappa: support
         radius / spacing; ``table``: a neighbour table to share (searched with the same h and
         kappa, which the operators then take from it); ``consistent``: also keep the linearly
         consistent Laplacian's coefficients with the Brookshaw lists (for the hyperviscosity
-        K^* L K; they cost about a third of the build)."""
+        K^* L K; they cost about a third of the build); ``keep_operator``: also keep the MFPM
+        operator's pair weights with them, for ``mapped_derivatives``."""
         if table is None:
             table = NeighbourTable(h, kappa)
         elif table.kappa != kappa or table.h.shape != h.shape or not np.array_equal(table.h, h):
@@ -110,6 +112,8 @@ class Operators:
         self.lap_b = np.zeros(n * MAX_NEIGHBOURS)
         self.consistent = consistent
         self.lap_c = np.zeros(n * MAX_NEIGHBOURS if consistent else 0)
+        self.lap_w = np.zeros((5, n * MAX_NEIGHBOURS) if keep_operator else (0, 0))
+        self.strain = np.zeros(n)  # max |F - I| of the last ``mapped_derivatives`` per node
         # the weight of the inner product in which the Brookshaw Laplacian is self-adjoint: the
         # node area, halved on the axis (an off-axis node stands for itself and its mirror
         # image, a node on the axis only for itself)
@@ -131,15 +135,7 @@ class Operators:
         keeps the Brookshaw pair lists for ``laplacian_args``.  The neighbour table is updated
         first.  An ill-conditioned or singular moment matrix raises ``SimulationError``.
         """
-        n = self.h.shape[0]
-        n_fields = fields.shape[0]
-        # the kernel does not check bounds: a wrong shape would read or write out of range
-        if (fields.ndim != 2 or fields.shape[1] != n or parity.shape != (n_fields,)
-                or out.ndim != 3 or out.shape[:2] != (n_fields, n) or out.shape[2] not in (2, 5)
-                or x.shape != (n,) or y.shape != (n,)):
-            raise ValueError(f"shapes: x, y ({n},), fields (n_fields, {n}), parity (n_fields,), "
-                             f"out (n_fields, {n}, 2 or 5); got x {x.shape}, y {y.shape}, fields "
-                             f"{fields.shape}, parity {parity.shape}, out {out.shape}")
+        self._check_shapes(x, y, fields, parity, out)
         t = self.table
         t.update(x, y, time_ms)
         if nodes is None:
@@ -151,7 +147,8 @@ class Operators:
         status = mfpm_derivatives(x, y, self.h, self.inv_h, self.area, self.kappa, t.start, t.nbr,
                                   t.mirrored, nodes, fields, parity, COND_MAX, out, self.cond,
                                   self.count, self.nbr, self.sign, self.lap_b,
-                                  self.lap_c, laplacian, laplacian and self.consistent,
+                                  self.lap_c, self.lap_w, laplacian,
+                                  laplacian and self.consistent,
                                   chunks(nodes.shape[0]))
         if laplacian:
             self.has_laplacian = True
@@ -164,6 +161,38 @@ class Operators:
                 + (f" at t = {time_ms:.4f} ms" if time_ms is not None else ""), time_ms,
                 "conditioning")
         return out
+
+    def _check_shapes(self, x, y, fields, parity, out):
+        """The kernels do not check bounds: a wrong shape would read or write out of range."""
+        n = self.h.shape[0]
+        n_fields = fields.shape[0]
+        if (fields.ndim != 2 or fields.shape[1] != n or parity.shape != (n_fields,)
+                or out.ndim != 3 or out.shape[:2] != (n_fields, n) or out.shape[2] not in (2, 5)
+                or x.shape != (n,) or y.shape != (n,)):
+            raise ValueError(f"shapes: x, y ({n},), fields (n_fields, {n}), parity (n_fields,), "
+                             f"out (n_fields, {n}, 2 or 5); got x {x.shape}, y {y.shape}, fields "
+                             f"{fields.shape}, parity {parity.shape}, out {out.shape}")
+
+    def mapped_derivatives(self, x, y, fields, parity, out, nodes=None, time_ms=None):
+        """As ``derivatives``, at the positions (x, y) [m], from the operator of the last full
+        build with ``laplacian=True`` (made with ``keep_operator``) mapped by the deformation
+        since (``kernels.mfpm.mapped_derivatives``): no build, no neighbour search.  Returns the
+        largest strain max |F - I| over ``nodes``; a deformation gradient that is not
+        invertible (the nodes tangled since the build) raises ``SimulationError``."""
+        if not self.has_laplacian or self.lap_w.shape[0] != 5:
+            raise RuntimeError("no operator kept: build with keep_operator and laplacian=True")
+        self._check_shapes(x, y, fields, parity, out)
+        if nodes is None:
+            nodes = self.all_nodes
+        status = mapped_derivatives(x, y, nodes, fields, parity, self.start, self.nbr, self.sign,
+                                    self.count, self.lap_w, out, self.strain,
+                                    chunks(nodes.shape[0]))
+        if status:
+            raise SimulationError(
+                "fluid blew up" + (f" at t = {time_ms:.4f} ms" if time_ms is not None else "")
+                + f": node {status - 1} tangled (its deformation gradient since the last "
+                f"operator build is not invertible)", time_ms, "blow-up")
+        return float(self.strain[nodes].max())
 
     def build(self, x, y, time_ms=None):
         """The operators at (x, y) [m] with no field: the Brookshaw pair lists and ``cond``."""

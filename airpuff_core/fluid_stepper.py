@@ -20,8 +20,14 @@ density ``rho`` [kg/m^3] of fixed-mass nodes) and a trial state at t^{n+1} in wo
    (``new_density``) and the interface pressure of eq. (5) (``interface_pressure_change``);
 3. ``commit``: the trial state becomes the state at t^{n+1} (buffers swapped, not copied).
 
-The operators at t^n (whose Brookshaw lists serve the hyperviscosity), t^{n+1/2} and t^{n+1}
-share one neighbour table; those at t^{n+1} become those at t^n at the commit.
+With ``strain_limit`` > 0 (the default ``STRAIN_LIMIT``) one operator serves t^n, t^{n+1/2} and
+t^{n+1}: built at reference positions, kept, and mapped to the positions of each evaluation by
+the deformation since (``Operators.mapped_derivatives``, docs/model.md section 4, "Kept
+operator"); the commit rebuilds it at the new state once a node's strain max |F - I| exceeds
+the limit.  Its Brookshaw lists, those of the reference positions, serve the hyperviscosity.
+With ``strain_limit`` 0 the operators at t^n (whose Brookshaw lists serve the hyperviscosity),
+t^{n+1/2} and t^{n+1} are each built at their positions, sharing one neighbour table; those at
+t^{n+1} become those at t^n at the commit.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from .threads import chunks
 
 VELOCITY_PARITY = np.array([-1.0, 1.0])  # v_x is odd in x, v_y even
 PRESSURE_PARITY = np.array([1.0])
+STRAIN_LIMIT = 0.02  # default strain_limit of ``FluidStepper`` (docs/performance.md, issue 31)
 
 
 class FluidStepper:
@@ -46,10 +53,12 @@ class FluidStepper:
 
     ``reuse=False`` rebuilds every operator and every derivative in full in each coupling
     iteration, instead of only what the moving cornea changes: the same answers, slower (a check
-    of the reuse).
+    of the reuse).  ``strain_limit``: the largest strain max |F - I| a kept operator is mapped
+    across before it is rebuilt (module docstring); 0 builds every operator at its positions.
     """
 
-    def __init__(self, si, chamber, hyperviscosity_operator: str, reuse: bool = True):
+    def __init__(self, si, chamber, hyperviscosity_operator: str, reuse: bool = True,
+                 strain_limit: float = STRAIN_LIMIT):
         ch = chamber
         n = ch.n
         self.rho0, self.p0, self.gamma, self.mu = si.rho_fluid, si.p0_Pa, si.tait_gamma, si.mu
@@ -69,11 +78,24 @@ class FluidStepper:
         self.hv_consistent_density = hyperviscosity_operator == "consistent"
         self.hv_consistent_velocity = hyperviscosity_operator in ("consistent",
                                                                   "consistent_velocity")
-        self.ops_n = Operators(ch.h, ch.area, KAPPA, self.neighbours,
-                               consistent=self.hv_consistent_velocity)
-        self.ops_half = Operators(ch.h, ch.area, KAPPA, self.neighbours)
-        self.ops_new = Operators(ch.h, ch.area, KAPPA, self.neighbours,
-                                 consistent=self.hv_consistent_velocity)
+        # strain_limit > 0: one operator, built at the reference positions and mapped by the
+        # deformation since (total Lagrangian form), rebuilt at the state once the largest
+        # strain max |F - I| exceeds strain_limit; 0: every operator built at its positions
+        self.strain_limit = strain_limit
+        self.lagrangian = strain_limit > 0
+        self.strain = 0.0  # largest strain of the nodes at t^n since the operator's build
+        self.strain_new = 0.0  # the same at t^{n+1}
+        self.operator_builds = 0  # full builds with the Brookshaw lists (the HV's operator)
+        if self.lagrangian:
+            self.ops_n = self.ops_half = self.ops_new = Operators(
+                ch.h, ch.area, KAPPA, self.neighbours, consistent=self.hv_consistent_velocity,
+                keep_operator=True)
+        else:
+            self.ops_n = Operators(ch.h, ch.area, KAPPA, self.neighbours,
+                                   consistent=self.hv_consistent_velocity)
+            self.ops_half = Operators(ch.h, ch.area, KAPPA, self.neighbours)
+            self.ops_new = Operators(ch.h, ch.area, KAPPA, self.neighbours,
+                                     consistent=self.hv_consistent_velocity)
         self._velocity = np.empty((2, n))  # (v_x, v_y) stacked for the MFPM kernel
         self.dv = np.zeros((2, n, 5))  # derivative vectors of v_x (dv[0]) and v_y (dv[1])
         self.div = np.zeros(n)
@@ -96,15 +118,23 @@ class FluidStepper:
         velocity = self._velocity
         velocity[0] = vx
         velocity[1] = vy
-        ops.derivatives(x, y, velocity, VELOCITY_PARITY, dv, nodes, laplacian, time_ms)
+        if self.lagrangian and not laplacian:
+            strain = ops.mapped_derivatives(x, y, velocity, VELOCITY_PARITY, dv, nodes, time_ms)
+        else:
+            ops.derivatives(x, y, velocity, VELOCITY_PARITY, dv, nodes, laplacian, time_ms)
+            strain = 0.0
+        if laplacian:
+            self.operator_builds += 1
         axisymmetric_divergence(ops.all_nodes if nodes is None else nodes, x, vx, dv[0], dv[1],
                                 div)
+        return strain
 
     def refresh_derivatives(self):
         """The operators and velocity derivatives at t^n for the current state (at the start,
         and after the state arrays were set from outside, e.g. by the stability analysis)."""
         self.velocity_derivatives(self.ops_n, self.x, self.y, self.vx, self.vy, self.dv,
                                   self.div, laplacian=True)
+        self.strain = 0.0
 
     # -- the parts of a step ----------------------------------------------------------------
     def predict(self, dt, c, t, hyperviscosity, dt_hyperviscous):
@@ -116,8 +146,12 @@ class FluidStepper:
         advance_density(self.rho, self.rho, self.div, 0.5 * dt, w["hv_rho"], dt, w["rho_half"])
         drift(self.x, self.y, self.vx, self.vy, 0.5 * dt, w["x_half"], w["y_half"])
         tait_pressure(w["rho_half"], self.rho0, self.p0, c, self.gamma, w["p_half"])
-        self.ops_half.derivatives(w["x_half"], w["y_half"], w["p_half"][np.newaxis],
-                                  PRESSURE_PARITY, self._grad_p, time_ms=t * 1e3)
+        if self.lagrangian:
+            self.ops_half.mapped_derivatives(w["x_half"], w["y_half"], w["p_half"][np.newaxis],
+                                             PRESSURE_PARITY, self._grad_p, time_ms=t * 1e3)
+        else:
+            self.ops_half.derivatives(w["x_half"], w["y_half"], w["p_half"][np.newaxis],
+                                      PRESSURE_PARITY, self._grad_p, time_ms=t * 1e3)
         w["vx_new"][:] = 0.0
         w["vy_new"][:] = 0.0
         advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p[0], self.dv[0],
@@ -170,10 +204,10 @@ class FluidStepper:
             self.velocity_derivatives(self.ops_new, w["x_new"], w["y_new"], w["vx_new"],
                                       w["vy_new"], self._dv_new, w["div_new"],
                                       self.cornea_nodes if self.reuse else None, time_ms=t * 1e3)
-        else:
-            self.velocity_derivatives(self.ops_new, w["x_new"], w["y_new"], w["vx_new"],
-                                      w["vy_new"], self._dv_new, w["div_new"], laplacian=True,
-                                      time_ms=t * 1e3)
+        else:  # the full fields; a fresh build keeps its Brookshaw lists for the next step
+            self.strain_new = self.velocity_derivatives(
+                self.ops_new, w["x_new"], w["y_new"], w["vx_new"], w["vy_new"], self._dv_new,
+                w["div_new"], laplacian=not self.lagrangian, time_ms=t * 1e3)
         advance_density(w["rho_half"], w["rho_half"], w["div_new"], 0.5 * dt, w["hv_rho"], 0.0,
                         w["rho_new"])
 
@@ -194,6 +228,9 @@ class FluidStepper:
         self.div, w["div_new"] = w["div_new"], self.div
         self.dv, self._dv_new = self._dv_new, self.dv
         self.ops_n, self.ops_new = self.ops_new, self.ops_n
+        self.strain = self.strain_new
+        if self.lagrangian and not self.strain <= self.strain_limit:  # also NaN
+            self.refresh_derivatives()  # the operator rebuilt at the new state
 
     # -- quantities of the state ------------------------------------------------------------
     def max_speed(self):

@@ -25,23 +25,25 @@ from .threads import solver_threads
 PROGRESS_INTERVAL = 0.2  # s of wall time between calls of ``progress``
 
 
-def simulate(params: RunParams, progress=None, reuse: bool = True, threads=None) -> RunResult:
+def simulate(params: RunParams, progress=None, reuse: bool = True, threads=None,
+             strain_limit=None) -> RunResult:
     """Run one coupled simulation and return its histories, snapshots and metrics.
 
-    ``progress(t_ms, t_end_ms)`` is called now and then.  ``reuse``: see ``CoupledModel``.
+    ``progress(t_ms, t_end_ms)`` is called now and then.  ``reuse`` and ``strain_limit``: see
+    ``CoupledModel``.
     ``threads``: how many threads the kernels use (``threads.py``; default Numba's setting, every
     core it sees unless changed); the result does not depend on it.  Raises SimulationError on blow-up, non-convergent
     coupling or an ill-conditioned operator (the message names the time), ParameterError on a
     bad ``threads`` or a run estimated above the step budget (``budget.check_step_budget``).
     """
     with solver_threads(threads):
-        return _simulate(params, progress, reuse)
+        return _simulate(params, progress, reuse, strain_limit)
 
 
-def _simulate(params, progress, reuse):
+def _simulate(params, progress, reuse, strain_limit):
     check_step_budget(params)  # a run estimated above the budget never starts
     wall0 = _time.monotonic()
-    model = CoupledModel(params, reuse)
+    model = CoupledModel(params, reuse, strain_limit)
     budget = EnergyBudget(model)
     recorder = Recorder(model, budget)
     observers = (budget, BlowUpCheck(), recorder)

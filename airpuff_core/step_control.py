@@ -65,6 +65,7 @@ class StepControl:
                                   for k in self._hv_kinds)
         self.hv_radius_max = self.hv_radius_unit
         self._hv_age = 0
+        self._hv_builds = fluid.operator_builds  # the HV operator's build of the estimate
         self.c = sound_speed(c_rule, self.c0, self.c_slope, 0.0, 0.0)
         self.dt_hyperviscous = math.inf  # s, stability limit of the hyperviscosity
         self.dt_limits = {}  # s: the acoustic and viscous limits of the last step
@@ -111,8 +112,12 @@ class StepControl:
             return math.inf
         # the stiffest hyperviscous mode moves with the nodes: refresh the estimate
         self._hv_age += 1
-        if self._hv_age >= HV_REFRESH_STEPS:
+        fluid = self.fluid
+        # a kept (mapped) operator changes only when rebuilt: then its radius is refreshed at once
+        due = self._hv_age >= HV_REFRESH_STEPS or fluid.lagrangian
+        if due and fluid.operator_builds != self._hv_builds:
             self._hv_age = 0
+            self._hv_builds = fluid.operator_builds
             self.hv_radius_unit = max(
                 self._hv_spectral_radius(k, self.hv_modes[k], HV_POWER_ITERATIONS)
                 for k in self._hv_kinds)

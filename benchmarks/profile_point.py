@@ -10,12 +10,11 @@ wall time (``benchmarks/yardstick.py``).  Parts, in the order of a step:
 - step control: the sound speed and dt, with the hyperviscosity's spectral-radius refresh
   (power iterations), shown apart;
 - hyperviscosity: its Runge-Kutta-Legendre super-steps in the predictor;
-- MFPM at t^{n+1/2}: the full build for grad p in the predictor;
-- MFPM at t^{n+1}: the full build with the velocity derivatives and the Brookshaw lists, after
-  the coupling;
+- MFPM: the operators built (grad p at t^{n+1/2}, the velocity derivatives and the Brookshaw
+  lists at t^{n+1}), or mapped from a kept operator (``FluidStepper``'s ``strain_limit``), at
+  all nodes or at the interface nodes in the coupling iterations;
 - coupling iterations: the Dirichlet-Neumann iterations, split into the cornea's sub-steps
-  (``advance``), the globe's walls (``impose``), the interface nodes' MFPM builds, and the rest
-  of an iteration (Python, the density and pressure at the interface);
+  (``advance``), the globe's walls (``impose``), and the rest of an iteration (Python, the density and pressure at the interface);
 - observers: the energy budget, the blow-up checks, the recorder;
 - the rest: the predictor's other kernels, the commit, Python's orchestration.
 """
@@ -26,7 +25,8 @@ import argparse
 import time
 from collections import defaultdict
 
-from airpuff_core import RunParams, simulate
+from airpuff_core import RunParams
+from airpuff_core.solver import simulate
 from airpuff_core.coupling import CoupledModel
 from airpuff_core.dirichlet_neumann import DirichletNeumann
 from airpuff_core.fluid import Operators
@@ -71,10 +71,14 @@ class Timers:
         self.calls.clear()
 
 
-def _mfpm_part(args, kwargs):
-    """The MFPM build's part: the interface nodes' (coupling), or a full one."""
-    nodes = args[6] if len(args) > 6 else kwargs.get("nodes")
-    return "MFPM, interface nodes only (coupling)" if nodes is not None else "MFPM, full build"
+def _mfpm_part(kind):
+    """The part of an MFPM evaluation (``kind``: build or mapped): the interface nodes' (in the
+    coupling), or all nodes'."""
+    def part(args, kwargs):
+        nodes = args[6] if len(args) > 6 else kwargs.get("nodes")
+        return f"MFPM {kind}, " + ("interface nodes (coupling)" if nodes is not None
+                                   else "all nodes")
+    return part
 
 
 def instrument():
@@ -91,7 +95,8 @@ def instrument():
         (StepControl, "begin_step", "step control", None),
         (FluidStepper, "_hyperviscous_rates", "hyperviscosity: RKL super-steps", None),
         (FluidStepper, "predict", "predictor: the rest", None),
-        (Operators, "derivatives", None, _mfpm_part),
+        (Operators, "derivatives", None, _mfpm_part("build")),
+        (Operators, "mapped_derivatives", None, _mfpm_part("mapped")),
         (DirichletNeumann, "iterate", "coupling: the rest of the iterations", None),
         (compliant.CompliantGlobe, "impose", "coupling: globe walls", None),
         (rigid.RigidGlobe, "impose", "coupling: globe walls", None),
@@ -123,6 +128,8 @@ def main(argv=None):
     ap.add_argument("resolution", nargs="?", default="paper", choices=("coarse", "paper", "fine"))
     ap.add_argument("--model", default="clinical", choices=("paper", "clinical"))
     ap.add_argument("--repeat", type=int, default=2, help="runs (the fastest is shown)")
+    ap.add_argument("--strain-limit", type=float, default=None,
+                    help="the fluid operator's strain limit (FluidStepper; default the solver's)")
     args = ap.parse_args(argv)
     params = RunParams(resolution=args.resolution, model=args.model)
     simulate(params.replace(t_end=0.05), threads=1)  # compile or load the kernels
@@ -134,7 +141,7 @@ def main(argv=None):
             stick = yardstick_seconds(data)
             timers.reset()
             t0 = time.perf_counter()
-            result = simulate(params, threads=1)
+            result = simulate(params, threads=1, strain_limit=args.strain_limit)
             wall = time.perf_counter() - t0
             stick = 0.5 * (stick + yardstick_seconds(data))
             if best is None or wall < best[0]:

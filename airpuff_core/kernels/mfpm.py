@@ -136,7 +136,7 @@ LAPLACIAN_SCALE = 2.0 * 140.0 / np.pi  # 2 x (7 / pi) x 20: b_ij = LAPLACIAN_SCA
 
 @njit(cache=True, parallel=True, fastmath=FUSED_MULTIPLY_ADD)
 def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, fields, parity,
-                     cond_max, out, cond, lap_count, lap_nbr, lap_sign, lap_b, lap_c,
+                     cond_max, out, cond, lap_count, lap_nbr, lap_sign, lap_b, lap_c, lap_w,
                      store_laplacian, store_consistent, n_chunks):
     """Build the MFPM operator of each node in ``nodes`` at the positions (x, y) [m] and apply it
     to every field: out[f, i, :] = D fields[f] at node i, with D f = (f_x, f_y, f_xx, f_xy, f_yy),
@@ -185,7 +185,10 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     too) the coefficients of the linearly consistent Laplacian
     c_ij = b_ij - m_i . g_ij (see ``consistent_laplacian``): m_i = sum_j b_ij (x_j - x_i) is the
     first moment of the Brookshaw weights (zero on a full symmetric support, not at a wall) and
-    g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).
+    g_ij the MFPM gradient weights, (grad f)_i = sum_j g_ij (f_j - f_i).  With
+    ``store_laplacian`` and a ``lap_w`` of 5 rows (not 0) the operator itself is kept too: its
+    pair weights d_ij = S A^-1 P_j W_ij, (D f)_i = sum_j d_ij (f_j - f_i), in
+    lap_w[:, start[i] ... start[i] + lap_count[i] - 1], for ``mapped_derivatives``.
 
     Returns 0, or i+1 for the first node whose matrix is singular or worse than ``cond_max``.
     """
@@ -200,13 +203,14 @@ def mfpm_derivatives(x, y, h, inv_h, area, kappa, start, nbr, mirrored, nodes, f
     if n_chunks == 1:  # no parallel loop to launch
         return _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                             cond_max, out, cond, lap_count, lap_nbr, lap_sign, lap_b,
-                            lap_c, store_laplacian, store_consistent)
+                            lap_c, lap_w, store_laplacian, store_consistent)
     status = np.zeros(n_chunks, np.int64)
     for c in prange(n_chunks):
         lo, hi = chunk_bounds(nodes.shape[0], n_chunks, c)
         status[c] = _build_nodes(nodes[lo:hi], node, area, kappa, start, nbr, mirrored, fields,
                                  parity, cond_max, out, cond, lap_count, lap_nbr,
-                                 lap_sign, lap_b, lap_c, store_laplacian, store_consistent)
+                                 lap_sign, lap_b, lap_c, lap_w, store_laplacian,
+                                 store_consistent)
     for c in range(n_chunks):  # the first failing node in the order of ``nodes``
         if status[c]:
             return status[c]
@@ -231,7 +235,7 @@ def _store_derivatives(out, f, i, n_rows, inv_s, inverse, b0, b1, b2, b3, b4):
 
 @njit(inline="always")
 def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity, cond_max, out,
-                 cond, lap_count, lap_nbr, lap_sign, lap_b, lap_c, store_laplacian,
+                 cond, lap_count, lap_nbr, lap_sign, lap_b, lap_c, lap_w, store_laplacian,
                  store_consistent):
     """The loop of ``mfpm_derivatives`` over ``nodes`` (one chunk), with its own scratch rows;
     ``node`` holds each node's (x, y, h, 1/h) side by side.  Inlined into ``mfpm_derivatives``."""
@@ -370,6 +374,21 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                 gx = (i00 * u + i10 * v + i20 * q2 + i30 * q3 + i40 * q4) * w_k[k]
                 gy = (i10 * u + i11 * v + i21 * q2 + i31 * q3 + i41 * q4) * w_k[k]
                 lap_c[p0 + k] = lap_b[p0 + k] - (mx * gx + my * gy)
+        if store_laplacian and lap_w.shape[0] == 5:
+            # the operator's pair weights d_k = S A^-1 W_k P_k
+            s2 = inv_s * inv_s
+            for k in range(m):
+                q0 = pw0[k]
+                q1 = pw1[k]
+                q2 = pw2[k]
+                q3 = pw3[k]
+                q4 = pw4[k]
+                p = p0 + k
+                lap_w[0, p] = inv_s * (i00 * q0 + i10 * q1 + i20 * q2 + i30 * q3 + i40 * q4)
+                lap_w[1, p] = inv_s * (i10 * q0 + i11 * q1 + i21 * q2 + i31 * q3 + i41 * q4)
+                lap_w[2, p] = s2 * (i20 * q0 + i21 * q1 + i22 * q2 + i32 * q3 + i42 * q4)
+                lap_w[3, p] = s2 * (i30 * q0 + i31 * q1 + i32 * q2 + i33 * q3 + i43 * q4)
+                lap_w[4, p] = s2 * (i40 * q0 + i41 * q1 + i42 * q2 + i43 * q3 + i44 * q4)
         # 4. each field's moment vector b, then D f = S A^-1 b; two fields share one pass over
         # the pairs: each sum b_a is a chain of dependent additions, and ten chains instead of
         # five keep the floating-point units busy (docs/performance.md)
@@ -415,6 +434,146 @@ def _build_nodes(nodes, node, area, kappa, start, nbr, mirrored, fields, parity,
                 b4 += pw4[k] * df
             _store_derivatives(out, f, i, n_rows, inv_s, inverse, b0, b1, b2, b3, b4)
     return status
+
+
+@njit(cache=True, parallel=True)
+def mapped_derivatives(x, y, nodes, fields, parity, start, nbr, sign, count, weights, out,
+                       strain, n_chunks):
+    """out[f, i, :] = (f_x, f_y, f_xx, f_xy, f_yy) of fields[f] at node i, or (f_x, f_y) when
+    ``out`` has two columns, at the positions (x, y) [m], from the MFPM operator D kept at
+    earlier positions X (``mfpm_derivatives`` with ``lap_w``: its pair lists start, nbr, sign,
+    count and pair weights ``weights`` (5, pairs)), mapped by the deformation since (the total
+    Lagrangian form of the operator).
+
+    D gives the derivatives with respect to the reference positions X.  Applied to the positions
+    themselves (x odd in x, y even) it gives the deformation gradient F = dx/dX and the map's
+    second derivatives; by the chain rule, with g = grad_x f and H_x f the Hessian in x,
+
+        D_X f = F^T g,     H_X f = F^T (H_x f) F + g_x H_X x + g_y H_X y,
+
+    so g = F^-T D_X f and H_x f = F^-T (H_X f - g_x H_X x - g_y H_X y) F^-1.  D is exact on
+    quadratics in X, so the mapped operator is exact on quadratic fields for any affine
+    deformation (F the same at every neighbour); for a curved one its error grows with the
+    deformation's curvature over the support (``FluidStepper``'s ``strain_limit`` bounds it).
+    strain[i] = max |F - I| (largest entry) at node i.  The nodes are done in ``n_chunks``
+    contiguous chunks in parallel; a node's result depends on its own pairs only, summed in
+    their order, so it is the same for any chunks or threads.  Returns 0, or i+1 for the first
+    node (in the order of ``nodes``) whose F is not invertible with a positive determinant."""
+    n_chunks = max(1, min(n_chunks, nodes.shape[0]))
+    if n_chunks == 1:
+        return _mapped_nodes(nodes, x, y, fields, parity, start, nbr, sign, count, weights,
+                             out, strain)
+    status = np.zeros(n_chunks, np.int64)
+    for c in prange(n_chunks):
+        lo, hi = chunk_bounds(nodes.shape[0], n_chunks, c)
+        status[c] = _mapped_nodes(nodes[lo:hi], x, y, fields, parity, start, nbr, sign, count,
+                                  weights, out, strain)
+    for c in range(n_chunks):
+        if status[c]:
+            return status[c]
+    return 0
+
+
+@njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
+def _mapped_nodes(nodes, x, y, fields, parity, start, nbr, sign, count, weights, out, strain):
+    """The loop of ``mapped_derivatives`` over ``nodes`` (one chunk).  One pass over a node's
+    pairs forms D_X of the positions and of one or two fields (a single field is carried twice):
+    each of the sums is a chain of dependent additions, and 20 chains in one pass keep the
+    floating-point units busy where separate passes would wait on each chain's latency."""
+    n_rows = out.shape[2]
+    n_fields = fields.shape[0]
+    w0, w1, w2, w3, w4 = weights[0], weights[1], weights[2], weights[3], weights[4]
+    status = 0
+    for f0 in range(0, n_fields, 2):
+        f1 = min(f0 + 1, n_fields - 1)
+        # x_j's factor for an image is sign[p]; a field's is sign[p] if odd, else 1
+        odd0 = 1.0 if parity[f0] < 0.0 else 0.0
+        odd1 = 1.0 if parity[f1] < 0.0 else 0.0
+        for i in nodes:
+            p0 = start[i]
+            p1 = p0 + count[i]
+            xi = x[i]
+            yi = y[i]
+            u0 = fields[f0, i]
+            u1 = fields[f1, i]
+            # D_X x = (a, b, xxx, xxy, xyy), D_X y = (c, d, yxx, yxy, yyy); F = [[a, b], [c, d]]
+            a = b = c = d = 0.0
+            xxx = xxy = xyy = yxx = yxy = yyy = 0.0
+            e0 = e1 = e2 = e3 = e4 = 0.0  # D_X of field f0
+            k0 = k1 = k2 = k3 = k4 = 0.0  # D_X of field f1
+            for p in range(p0, p1):
+                j = nbr[p]
+                sp = sign[p]
+                dx = sp * x[j] - xi
+                dy = y[j] - yi
+                d0 = (1.0 + odd0 * (sp - 1.0)) * fields[f0, j] - u0
+                d1 = (1.0 + odd1 * (sp - 1.0)) * fields[f1, j] - u1
+                q0 = w0[p]
+                q1 = w1[p]
+                q2 = w2[p]
+                q3 = w3[p]
+                q4 = w4[p]
+                a += q0 * dx
+                b += q1 * dx
+                c += q0 * dy
+                d += q1 * dy
+                xxx += q2 * dx
+                xxy += q3 * dx
+                xyy += q4 * dx
+                yxx += q2 * dy
+                yxy += q3 * dy
+                yyy += q4 * dy
+                e0 += q0 * d0
+                e1 += q1 * d0
+                e2 += q2 * d0
+                e3 += q3 * d0
+                e4 += q4 * d0
+                k0 += q0 * d1
+                k1 += q1 * d1
+                k2 += q2 * d1
+                k3 += q3 * d1
+                k4 += q4 * d1
+            strain[i] = max(abs(a - 1.0), abs(b), abs(c), abs(d - 1.0))
+            det = a * d - b * c
+            if not det > 0.0:  # also NaN
+                if status == 0:
+                    status = i + 1
+                continue
+            inv_det = 1.0 / det
+            # G = F^-1 = [[d, -b], [-c, a]] / det
+            g00 = d * inv_det
+            g01 = -b * inv_det
+            g10 = -c * inv_det
+            g11 = a * inv_det
+            _chain_rule(out, f0, i, n_rows, g00, g01, g10, g11, xxx, xxy, xyy, yxx, yxy, yyy,
+                        e0, e1, e2, e3, e4)
+            if f1 != f0:
+                _chain_rule(out, f1, i, n_rows, g00, g01, g10, g11, xxx, xxy, xyy, yxx, yxy,
+                            yyy, k0, k1, k2, k3, k4)
+    return status
+
+
+@njit(inline="always")
+def _chain_rule(out, f, i, n_rows, g00, g01, g10, g11, xxx, xxy, xyy, yxx, yxy, yyy, e0, e1, e2,
+                e3, e4):
+    """out[f, i] = the derivatives in x of a field from its derivatives e = D_X f in X, with
+    G = F^-1 and the map's second derivatives (``mapped_derivatives``):
+    g = G^T (e0, e1), H_x = G^T M G, M = H_X f - g_x H_X x - g_y H_X y."""
+    gx = g00 * e0 + g10 * e1
+    gy = g01 * e0 + g11 * e1
+    out[f, i, 0] = gx
+    out[f, i, 1] = gy
+    if n_rows == 5:
+        m00 = e2 - gx * xxx - gy * yxx
+        m01 = e3 - gx * xxy - gy * yxy
+        m11 = e4 - gx * xyy - gy * yyy
+        t00 = m00 * g00 + m01 * g10  # M G
+        t01 = m00 * g01 + m01 * g11
+        t10 = m01 * g00 + m11 * g10
+        t11 = m01 * g01 + m11 * g11
+        out[f, i, 2] = g00 * t00 + g10 * t10
+        out[f, i, 3] = g00 * t01 + g10 * t11
+        out[f, i, 4] = g01 * t01 + g11 * t11
 
 
 @njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)

@@ -18,7 +18,7 @@ from airpuff_core import ParameterError, RunParams
 from airpuff_core.coupling import CoupledModel
 from airpuff_core.fluid import COND_MAX
 from airpuff_core.kernels.mfpm import (flow_operator_work, hyperviscous_flow_operator,
-                                       hyperviscous_term, mfpm_derivatives)
+                                       hyperviscous_term, mapped_derivatives, mfpm_derivatives)
 from airpuff_core.threads import check_threads
 
 OPERATORS = ("brookshaw", "consistent_velocity", "consistent")
@@ -83,7 +83,7 @@ def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
         out = np.zeros((3, n, 5))
         arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
                   np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
-                  np.zeros_like(ops.lap_c)]
+                  np.zeros_like(ops.lap_c), np.zeros((5, ops.nbr.size))]
         status = mfpm_derivatives(x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start,
                                   t.nbr, t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out,
                                   *arrays, True, True, chunks)
@@ -95,6 +95,32 @@ def test_mfpm_build_does_not_depend_on_the_chunks(n_chunks):
     assert np.array_equal(out1, out2)
     for a, b in zip(arrays1, arrays2):
         assert np.array_equal(a, b)
+
+
+def _mapped(ops, x, y, fields, chunks):
+    """The operator kept by the last build (``lap_w``), mapped to positions moved from (x, y):
+    the derivatives of the fields (odd, even, even), in ``chunks`` chunks, and the strains."""
+    n = x.size
+    rng = np.random.default_rng(6)
+    moved_x = x * (1.0 + 0.01 * np.sin(300.0 * y)) + 1e-3 * ops.h * rng.standard_normal(n)
+    moved_y = y + 1e-3 * ops.h * rng.standard_normal(n)
+    out = np.zeros((3, n, 5))
+    strain = np.zeros(n)
+    status = mapped_derivatives(moved_x, moved_y, ops.all_nodes, fields,
+                                np.array([-1.0, 1.0, 1.0]), ops.start, ops.nbr, ops.sign,
+                                ops.count, ops.lap_w, out, strain, chunks)
+    assert status == 0
+    return np.concatenate([out.ravel(), strain])
+
+
+@pytest.mark.parametrize("n_chunks", [2, 5])
+def test_mapped_derivatives_do_not_depend_on_the_chunks(n_chunks):
+    """The kept operator mapped to moved nodes gives the same bits with one chunk or several."""
+    model = CoupledModel(RunParams(resolution="coarse"))
+    ops = model.fluid.ops_n
+    fields = np.random.default_rng(7).standard_normal((3, model.x.size))
+    assert np.array_equal(_mapped(ops, model.x, model.y, fields, 1),
+                          _mapped(ops, model.x, model.y, fields, n_chunks))
 
 
 def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
@@ -112,15 +138,17 @@ def test_mfpm_build_does_not_depend_on_where_its_arrays_lie():
         shifts.append(np.empty(17 + 1000 * trial))  # moves the next allocations
         out = np.zeros((2, n, 5))
         lap_c = np.zeros_like(ops.lap_c)
+        lap_w = np.zeros((5, ops.nbr.size))
         arrays = [np.zeros(n), np.zeros(n, np.int64), np.zeros_like(ops.nbr),
                   np.zeros_like(ops.sign), np.zeros_like(ops.lap_b),
-                  lap_c]
+                  lap_c, lap_w]
         mfpm_derivatives(model.x, model.y, ops.h, ops.inv_h, ops.area, ops.kappa, t.start, t.nbr,
                          t.mirrored, ops.all_nodes, fields, parity, COND_MAX, out, *arrays, True,
                          True, 1 + trial % 3)
         if first is None:
-            first = (out, lap_c)
-        assert np.array_equal(out, first[0]) and np.array_equal(lap_c, first[1]), trial
+            first = (out, lap_c, lap_w)
+        assert (np.array_equal(out, first[0]) and np.array_equal(lap_c, first[1])
+                and np.array_equal(lap_w, first[2])), trial
 
 
 def build_and_operator_outputs():
@@ -136,7 +164,7 @@ def build_and_operator_outputs():
     fields = rng.standard_normal((3, n))
     ops.start[:] = t.start
     arrays = {"cond": ops.cond, "count": ops.count, "nbr": ops.nbr, "sign": ops.sign,
-              "lap_b": ops.lap_b, "lap_c": ops.lap_c}
+              "lap_b": ops.lap_b, "lap_c": ops.lap_c, "lap_w": ops.lap_w}
     outputs = {}
     for chunks in (1, 3):
         out = np.zeros((3, n, 5))
@@ -148,6 +176,7 @@ def build_and_operator_outputs():
         outputs[f"derivatives_{chunks}"] = out
         outputs.update({f"{name}_{chunks}": a.copy() for name, a in arrays.items()})
         outputs[f"operator_{chunks}"] = _flow(model, fields, chunks)  # on the lists just built
+        outputs[f"mapped_{chunks}"] = _mapped(ops, x, model.y, fields, chunks)
     return outputs
 
 
