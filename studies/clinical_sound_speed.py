@@ -4,7 +4,9 @@ The weakly compressible fluid is right only where the results do not depend on c
 section 4).  This study runs the clinical preset (normal eye: CCT 0.54 mm) at each IOP and sound
 speed and reports, per run, P1, P2, CH, DA, the chamber's acoustic ringing (rms of the fluid's mean
 wall pressure minus the globe's pressure, t > 1 ms) and the parts of CH at the apex (the apex force
-budget, docs/model.md section 7), and per IOP the largest change of each metric from c0 = 10.
+budget, docs/model.md section 7), how near the apex's rebound after the second applanation comes
+to a further one (``rebound_dip``), how far P2 moves for an error of 0.01/mm in the apex
+curvature at A2 (``p2_conditioning``), and per IOP the largest change of each metric from c0 = 10.
 Tolerances (docs/validation.md): P1, P2 0.2 mmHg, CH 0.3 mmHg, DA 0.01 mm.
 
     python -m studies.clinical_sound_speed --out soundspeed_paper                       # ~1 h
@@ -29,6 +31,7 @@ from airpuff_core import RunParams, SimulationError, simulate
 from airpuff_core.dataset import open_dataset, params_from_dataset, write_netcdf
 
 TOLERANCE = {"P1": 0.2, "P2": 0.2, "CH": 0.3, "DA": 0.01}
+FORMAT = {"DA": "%.3f", "rebound_dip": "%.3f", "convex_crossings": "%d"}
 PARTS = ("CH_profile", "CH_fluid", "CH_equilibrium", "CH_overstress", "CH_inertia", "CH_residual")
 
 
@@ -41,9 +44,48 @@ def ringing_rms(ds) -> float:
     return float(np.sqrt(np.nanmean(dev ** 2)))
 
 
+def rebound_dip(ds, window_ms=3.0):
+    """How near the apex comes to a further applanation after the cornea first turns convex again:
+    (the smallest apex curvature [1/mm] after the curvature's first peak within ``window_ms`` of
+    the first concave -> convex crossing following A1 (NaN without such a rebound), the number of
+    concave -> convex crossings after A1).  A2 is the last such crossing (docs/model.md section
+    7), so where the rebound dips to within a few 0.01/mm of zero, a small change of the run moves
+    A2 across the rebound and P2 by the jet's fall over it (several mmHg)."""
+    t = ds["time"].values
+    kappa = ds["apex_curvature"].values
+    after = t > float(ds["t_A1"])
+    t, kappa = t[after], kappa[after]
+    up = np.flatnonzero((kappa[:-1] < 0) & (kappa[1:] >= 0))
+    if up.size == 0:
+        return math.nan, 0
+    start = up[0] + 1
+    window = kappa[start:np.searchsorted(t, t[start] + window_ms, side="right")]
+    peaks = np.flatnonzero(np.diff(window) <= 0)  # the first sample from which it falls
+    if peaks.size == 0:
+        return math.nan, int(up.size)
+    return float(window[peaks[0]:].min()), int(up.size)
+
+
+def p2_conditioning(ds, half_width_ms=0.1, curvature_error=0.01):
+    """How far P2 moves [mmHg] for an error of ``curvature_error`` [1/mm] in the apex curvature:
+    the jet's fall over the time the curvature takes to change by that much at A2, from the
+    histories' slopes over +-``half_width_ms``.  Where the apex creeps through flat (a slow
+    crossing while the jet falls ~8 mmHg/ms) this is several mmHg."""
+    t_a2 = float(ds["t_A2"])
+    if not math.isfinite(t_a2):
+        return math.nan
+    t = ds["time"].values
+    lo, hi = t_a2 - half_width_ms, t_a2 + half_width_ms
+    dkappa = np.interp(hi, t, ds["apex_curvature"].values) - np.interp(lo, t, ds["apex_curvature"].values)
+    djet = np.interp(hi, t, ds["jet_pressure_apex"].values) - np.interp(lo, t, ds["jet_pressure_apex"].values)
+    return float(abs(djet / dkappa) * curvature_error) if dkappa else math.inf
+
+
 def row_of(ds) -> dict:
     row = {k: float(ds[k]) for k in ("P1", "P2", "CH", "DA", "IOPg", "t_A1", "t_A2")}
     row["ringing_rms"] = ringing_rms(ds)
+    row["rebound_dip"], row["convex_crossings"] = rebound_dip(ds)
+    row["P2_per_0.01_curvature"] = p2_conditioning(ds)
     for k in PARTS:
         row[k] = float(ds[k]) if k in ds else math.nan
     row["wall_s"] = float(ds.attrs.get("solver_wall_s", math.nan))
@@ -67,7 +109,8 @@ def run(name, params, out, reuse):
 
 
 def table(rows, c0s, iops) -> str:
-    cols = ("P1", "P2", "CH", "DA", "ringing_rms") + PARTS
+    cols = ("P1", "P2", "CH", "DA", "ringing_rms", "rebound_dip", "convex_crossings",
+            "P2_per_0.01_curvature") + PARTS
     lines = ["| IOP | c0 | " + " | ".join(cols) + " | status |",
              "|" + "---|" * (len(cols) + 3)]
     for iop in iops:
@@ -77,7 +120,7 @@ def table(rows, c0s, iops) -> str:
                 lines.append(f"| {iop:g} | {c0:g} | " + " | ".join("" for _ in cols)
                              + f" | {r['message']} |")
                 continue
-            fmt = ["%.3f" % r[k] if k == "DA" else "%.2f" % r[k] for k in cols]
+            fmt = [FORMAT.get(k, "%.2f") % r[k] for k in cols]
             lines.append(f"| {iop:g} | {c0:g} | " + " | ".join(fmt) + " | ok |")
     lines += ["", "Largest change from c0 = %g (tolerance):" % c0s[0], "",
               "| IOP | " + " | ".join(f"{k} ({v:g})" for k, v in TOLERANCE.items()) + " | within |",
