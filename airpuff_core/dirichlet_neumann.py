@@ -30,6 +30,7 @@ class DirichletNeumann:
         self._pressures = (np.empty(size), np.empty(size))  # estimate and new pressure [Pa]
         self.iterations = 0
         self.residual = 0.0
+        self.pressure = self._pressures[0]  # the converged interface pressure of the last use [Pa]
 
     def iterate(self, update, p_start, t_ms):
         """Iterate ``update(p_est, p_new) -> residual`` (fills p_new from the estimate p_est and
@@ -52,4 +53,5 @@ class DirichletNeumann:
                 f"iterations", t_ms, "coupling")
         self.iterations = it
         self.residual = residual
+        self.pressure = p_est  # the last map's output
         return it

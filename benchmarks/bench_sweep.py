@@ -25,6 +25,10 @@ other load on the machine).
     python -m benchmarks.bench_sweep --workers 2    # one configuration only
     python -m benchmarks.bench_sweep --repeat 3     # 1, 2, 1, 2, 1, 2 workers; medians compared
     python -m benchmarks.bench_sweep --points 8     # 8 points instead of 16
+    python -m benchmarks.bench_sweep --workers 2 --clinical-paper 100   # a sweep's real points
+
+``--clinical-paper N``: N clinical-preset points at paper resolution, the unit of work of a
+clinical sweep (IOP 10-25 mmHg x CCT 0.45-0.65 mm, a grid of a x b = N values, a >= b).
 """
 
 from __future__ import annotations
@@ -48,6 +52,17 @@ def grid(t_end: float = 35.0, points: int = 16) -> SweepSpec:
     iop = {8: [12.0, 20.0], 16: [12.0, 16.0, 20.0, 24.0]}[points]
     return SweepSpec(E0=[0.4, 0.5, 0.6, 0.7], IOP=iop, thickness=[0.5], pmax=[10.0],
                      options={"resolution": "coarse", "t_end": t_end})
+
+
+def clinical_paper_grid(points: int) -> SweepSpec:
+    """``points`` clinical-preset points at paper resolution: IOP x CCT over the clinic's range,
+    a x b = points values (b the largest divisor of points not above its square root)."""
+    b = max(d for d in range(1, int(points ** 0.5) + 1) if points % d == 0)
+    a = points // b
+    iop = [round(10.0 + 15.0 * k / max(1, a - 1), 3) for k in range(a)]
+    cct = [round(0.45 + 0.2 * k / max(1, b - 1), 4) for k in range(b)]
+    return SweepSpec(IOP=iop, thickness=cct,
+                     options={"resolution": "paper", "model": "clinical"})
 
 
 def measure(workers: int, spec: SweepSpec) -> dict:
@@ -116,6 +131,8 @@ def main(argv=()):
     ap.add_argument("--points", type=int, choices=(8, 16), default=16,
                     help="grid size (default 16); the last points leave a worker idle while "
                          "another finishes, which weighs less in a longer sweep")
+    ap.add_argument("--clinical-paper", type=int, default=0, metavar="N",
+                    help="N clinical-preset points at paper resolution instead (module docstring)")
     ap.add_argument("--repeat", type=int, default=1,
                     help="measure each worker count this many times, alternating (default 1); "
                          "the median throughput is compared")
@@ -123,7 +140,8 @@ def main(argv=()):
     counts = [int(w) for w in args.workers.split(",")]
     print(f"sweep benchmark: {os.cpu_count()} cores, load average "
           f"{', '.join(f'{v:.2f}' for v in os.getloadavg())} (other load slows the workers)")
-    spec = grid(args.t_end, args.points)
+    spec = (clinical_paper_grid(args.clinical_paper) if args.clinical_paper
+             else grid(args.t_end, args.points))
     rates: dict[int, list[float]] = {w: [] for w in counts}
     for _ in range(args.repeat):
         for workers in counts:

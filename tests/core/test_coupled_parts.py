@@ -23,6 +23,23 @@ def _linear_interface(A, b, p0):
     return update
 
 
+def test_the_coupling_starts_closer_to_the_answer_than_p_n():
+    """The first estimate p^n + dt dp/dt (the last step's rate) is second-order close to the
+    converged p^{n+1} where p^n is first-order close: during the jet's rise (coarse clinical
+    preset, steps 100-300) it is more than 3 times closer than p^n in the median (measured:
+    5.1 times)."""
+    model = CoupledModel(RunParams(resolution="coarse", model="clinical"))
+    ratios = []
+    for step in range(300):
+        p_n = model.p_interface.copy()
+        model.step()
+        if step >= 100:
+            converged = model.coupling.pressure
+            ratios.append(np.linalg.norm(model._p_start - converged)
+                          / np.linalg.norm(p_n - converged))
+    assert np.median(ratios) < 0.3, np.median(ratios)
+
+
 def test_dirichlet_neumann_converges_to_the_fixed_point_of_a_contraction():
     rng = np.random.default_rng(3)
     n = 6
