@@ -128,8 +128,17 @@ CH_TARGET = Target(
 REFERENCE = {"IOP": 16.0, "E0": 0.5}
 REFERENCE_CCT = 0.54
 CCT_POINTS = (0.45, 0.54, 0.65)
-# the readings of the raw mode (the run's metrics); the calibrated ones come with issue 26
+# the readings fitted: the raw ones (the run's metrics) or the calibrated ones (issue 26,
+# airpuff_core/calibration.py), the calibration made again at every trial
 RAW_READINGS = {"slope": "IOPg", "CH": "CH"}
+CALIBRATED_READINGS = {"slope": "IOPg_cal", "CH": "CH_cal"}
+
+
+# The derivatives of the first Newton step of each solve (the solves correct them from their own
+# evaluations), from docs/validation.md: the CCT slope's +0.28 mmHg per 100 um per kPa of G_t
+# ("The clinical fit": the development fit's local derivative), CH's +2.5 mmHg per 0.1 of g at
+# paper resolution ("How CH moves").
+FIRST_DERIVATIVES = {"transverse_shear_modulus": 0.28, "ve_g": 25.0}
 
 
 # -- the 1-D solver ---------------------------------------------------------------------------
@@ -291,50 +300,99 @@ class Responses:
 
     ``base``: the run parameters of the reference eye (user units; without thickness and the
     two fitted parameters); ``ccts``: the CCTs [mm] of the slope; ``reference_cct``: where CH
-    is read; ``readings``: the metric whose CCT slope is fitted (``slope``) and that of ``CH``.
+    is read.  ``calibration_iops``: None for the raw readings (IOPg, CH); otherwise the IOPs
+    [mmHg] of the calibration's reference sweep, made again at every trial (G_t, g) because a
+    calibration is a property of the population it was made on: the readings are then the
+    calibrated IOPg_cal and CH_cal (``airpuff_core.calibration``, docs/calibration.md).
     """
 
     runner: PointRunner
     base: dict
     ccts: tuple[float, ...] = CCT_POINTS
     reference_cct: float = REFERENCE_CCT
-    readings: dict = field(default_factory=lambda: dict(RAW_READINGS))
+    calibration_iops: tuple[float, ...] | None = None
     evaluations: list[dict] = field(default_factory=list)
     log: Callable[[dict], None] = print
+    _calibrations: dict = field(default_factory=dict, repr=False)
 
-    def params(self, shear: float, ratio: float, cct: float) -> RunParams:
+    @property
+    def readings(self) -> dict[str, str]:
+        """The readings fitted: the CCT slope's and CH's metric names."""
+        return dict(RAW_READINGS if self.calibration_iops is None else CALIBRATED_READINGS)
+
+    def params(self, shear: float, ratio: float, cct: float, **eye) -> RunParams:
         return RunParams.from_dict({**self.base, SHEAR.name: shear, RATIO.name: ratio,
-                                    "thickness": cct})
+                                    "thickness": cct, **eye})
 
-    def _metrics(self, shear: float, ratio: float, ccts) -> list[dict]:
-        records = self.runner.run([self.params(shear, ratio, c) for c in ccts])
-        for cct, record in zip(ccts, records):
+    def _run(self, shear: float, ratio: float, points: list[RunParams]) -> list[dict]:
+        records = self.runner.run(points)
+        for p, record in zip(points, records):
             if not record.ok:
-                raise FitError(f"the run at G_t {shear:g} kPa, g {ratio:g}, CCT {cct:g} mm "
-                               f"failed: {record.message}")
+                raise FitError(f"the run at G_t {shear:g} kPa, g {ratio:g}, CCT {p.thickness:g} "
+                               f"mm, IOP {p.IOP:g} mmHg failed: {record.message}")
         return [record.metrics for record in records]
 
+    def _readings(self, shear: float, ratio: float, ccts) -> list[dict[str, float]]:
+        """The fitted readings (``slope``, ``CH``) of the reference eye at each CCT."""
+        metrics = self._run(shear, ratio, [self.params(shear, ratio, c) for c in ccts])
+        if self.calibration_iops is None:
+            return [{"slope": m["IOPg"], "CH": m["CH"]} for m in metrics]
+        from airpuff_core.calibration import apply_coefficients
+
+        coefficients = self.calibration(shear, ratio)
+        out = []
+        for m in metrics:
+            cal = apply_coefficients(coefficients, _number(m["P1"]), _number(m["P2"]))
+            out.append({"slope": cal[CALIBRATED_READINGS["slope"]],
+                        "CH": cal[CALIBRATED_READINGS["CH"]]})
+        return out
+
+    def calibration(self, shear: float, ratio: float) -> dict[str, float]:
+        """The calibration's coefficients at (G_t, g): ``airpuff calibrate``'s fit on the IOP
+        sweep of its reference eye (``airpuff_core.calibration.REFERENCE_EYE``) with these
+        tissue values; made once per trial and recorded as an evaluation."""
+        if (shear, ratio) in self._calibrations:
+            return self._calibrations[(shear, ratio)]
+        from airpuff_core.calibration import REFERENCE_EYE, fit_coefficients
+
+        points = [self.params(shear, ratio, REFERENCE_EYE["thickness"],
+                              **{**REFERENCE_EYE, "IOP": iop}) for iop in self.calibration_iops]
+        metrics = self._run(shear, ratio, points)
+        p1 = [_number(m["P1"]) for m in metrics]
+        p2 = [_number(m["P2"]) for m in metrics]
+        try:
+            coefficients = fit_coefficients(list(self.calibration_iops), p1, p2)
+        except ValueError as err:
+            raise FitError(f"no calibration at G_t {shear:g} kPa, g {ratio:g}: {err}") from None
+        self._calibrations[(shear, ratio)] = coefficients
+        self._record("calibration_slope", shear, ratio, coefficients["pressure_slope"], "",
+                     {"coefficients": coefficients, "IOP": list(self.calibration_iops),
+                      "P1_raw": p1, "P2_raw": p2})
+        return coefficients
+
     def slope(self, shear: float, ratio: float, solve: str = "") -> float:
-        """Least-squares slope [mmHg per 100 um] of the slope reading over ``ccts``."""
-        metrics = self._metrics(shear, ratio, self.ccts)
-        values = np.array([m[self.readings["slope"]] for m in metrics], dtype=float)
+        """Least-squares slope [mmHg per 100 um] of the slope reading over ``ccts``; the CH
+        reading at the reference CCT, if it is one of them, is recorded too."""
+        readings = self._readings(shear, ratio, self.ccts)
+        values = np.array([r["slope"] for r in readings], dtype=float)
         if not np.all(np.isfinite(values)):
             raise FitError(f"{self.readings['slope']} is missing at G_t {shear:g} kPa, "
                            f"g {ratio:g} (CCT {list(self.ccts)}): {values.tolist()}")
         slope_per_mm = np.polyfit(np.array(self.ccts), values, 1)[0]
         value = float(slope_per_mm * 0.1)
-        self._record("cct_slope", shear, ratio, value, solve,
-                     {"ccts_mm": list(self.ccts), "readings_mmHg": values.tolist()})
+        detail = {"ccts_mm": list(self.ccts), "readings_mmHg": values.tolist()}
+        if self.reference_cct in self.ccts:
+            detail["CH_at_reference"] = readings[self.ccts.index(self.reference_cct)]["CH"]
+        self._record("cct_slope", shear, ratio, value, solve, detail)
         return value
 
     def ch(self, shear: float, ratio: float, solve: str = "") -> float:
         """The CH reading [mmHg] at the reference CCT."""
-        (metrics,) = self._metrics(shear, ratio, (self.reference_cct,))
-        value = metrics[self.readings["CH"]]
+        (reading,) = self._readings(shear, ratio, (self.reference_cct,))
+        value = reading["CH"]
         if value is None or not math.isfinite(value):
             raise FitError(f"{self.readings['CH']} is missing at G_t {shear:g} kPa, g {ratio:g}")
-        self._record("CH", shear, ratio, float(value), solve,
-                     {"P1": metrics["P1"], "P2": metrics["P2"], "IOPg": metrics["IOPg"]})
+        self._record("CH", shear, ratio, float(value), solve, {})
         return float(value)
 
     def _record(self, response, shear, ratio, value, solve, detail):
@@ -343,6 +401,11 @@ class Responses:
                  **detail}
         self.evaluations.append(entry)
         self.log(entry)
+
+
+def _number(value) -> float:
+    """A metric of a point record as a float (None, a missing reading, is NaN)."""
+    return math.nan if value is None else float(value)
 
 
 # -- the fit ----------------------------------------------------------------------------------
@@ -366,8 +429,9 @@ def fit(responses: Responses, slope_target: Target = SLOPE_TARGET, ch_target: Ta
     from a Newton step while the slope is out of its tolerance (at most ``max_outer`` times)."""
     shear, ratio = start or (SHEAR.published, RATIO.published)
     solves: list[dict] = []
-    shear_derivative = None
-    ratio_derivative = None
+    # the first Newton steps' derivatives; each later solve starts from its predecessor's
+    shear_derivative = FIRST_DERIVATIVES[SHEAR.name]
+    ratio_derivative = FIRST_DERIVATIVES[RATIO.name]
     shear_step = 0.25 * (SHEAR.high - SHEAR.low)
     ratio_step = 0.25 * (RATIO.high - RATIO.low)
     slope_residual = None  # the slope's residual at (shear, ratio), once the check knows it
@@ -538,22 +602,32 @@ def instruments() -> tuple[str, ...]:
     return CHOICES.get("instrument", ("paper",))
 
 
+def calibration_available() -> bool:
+    """Whether this version of the solver has the instruments' calibration (issue 26)."""
+    try:
+        from airpuff_core.calibration import apply_coefficients, fit_coefficients  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def check_mode(args) -> str:
-    """``clinical`` or ``development``; a clinical fit without the ORA pulse and the calibrated
-    readings is refused (one line, exit code 2)."""
-    if args.instrument == "ora" and not args.raw:
-        if "ora" not in instruments():
-            _fail("instrument: ora is not in this version of the solver (issue 26's pulses); "
-                  "run the labelled development mode with --instrument paper --raw --development")
+    """``clinical`` (the ORA's pulse, calibrated readings) or ``development`` (anything else,
+    only with ``--development``); what this version of the solver lacks is refused (one line,
+    exit code 2)."""
+    if args.instrument not in instruments():
+        _fail(f"instrument: {args.instrument} is not in this version of the solver (it has "
+              f"{', '.join(instruments())}; issue 26's pulses); run the labelled development "
+              f"mode with --instrument paper --raw --development")
+    if not args.raw and not calibration_available():
         _fail("readings: calibrated readings are not in this version of the solver (issue 26's "
               "calibration); run the labelled development mode with --raw --development")
+    if args.instrument == "ora" and not args.raw:
+        return "clinical"
     if not args.development:
         _fail(f"--instrument {args.instrument}{' --raw' if args.raw else ''} gives no clinical "
               f"fit (the clinical fit is the ORA's calibrated reading): add --development to run "
               f"the labelled development mode")
-    if args.instrument not in instruments():
-        _fail(f"instrument: {args.instrument} is not in this version of the solver (it has "
-              f"{', '.join(instruments())})")
     return "development"
 
 
@@ -584,6 +658,9 @@ def parse_args(argv):
     ap.add_argument("--workers", default="0",
                     help="Dask worker processes for the runs (0: in this process)")
     ap.add_argument("--max-evaluations", default="8", help="evaluations per 1-D solve")
+    ap.add_argument("--calibration-iop", default=None, metavar="IOPS",
+                    help="IOPs [mmHg] of the calibration's reference sweep, made at every trial "
+                         "(default that of airpuff calibrate)")
     return ap.parse_args(argv), ap
 
 
@@ -600,11 +677,21 @@ def main(argv=None) -> int:
         reference_cct = parse_decimal(args.reference_cct)
         start = _floats(args.start) if args.start else None
         workers = int(args.workers)
+        calibration_iops = None
+        if not args.raw:
+            from sweep.calibration import DEFAULT_IOP
+
+            calibration_iops = (_floats(args.calibration_iop) if args.calibration_iop
+                                else tuple(DEFAULT_IOP))
         max_evaluations = int(args.max_evaluations)
     except ValueError as err:
         ap.error(str(err))
     if len(ccts) < 2 or len(set(ccts)) != len(ccts):
         ap.error(f"--cct: at least two distinct CCTs, got {args.cct}")
+    if args.raw and args.calibration_iop:
+        ap.error("--calibration-iop: calibrated readings only (not with --raw)")
+    if calibration_iops is not None and len(set(calibration_iops)) < 2:
+        ap.error(f"--calibration-iop: at least two distinct IOPs, got {args.calibration_iop}")
     if start is not None and len(start) != 2:
         ap.error(f"--start: two values G_t,g, got {args.start}")
     if workers < 0 or max_evaluations < 2:
@@ -657,7 +744,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     try:
         runner = PointRunner(out / "points", client, log_run)
-        responses = Responses(runner, base, ccts, reference_cct, dict(RAW_READINGS), log=log)
+        responses = Responses(runner, base, ccts, reference_cct, calibration_iops, log=log)
         try:
             result = fit(responses, slope_target, ch_target, start,
                          max_evaluations=max_evaluations)
@@ -667,15 +754,16 @@ def main(argv=None) -> int:
     finally:
         if client is not None:
             close_client(client)
-    summary = summary_of(mode, args, argv, base, ccts, reference_cct, slope_target, ch_target,
-                         result, error, runs, responses.evaluations, time.perf_counter() - t0)
+    summary = summary_of(mode, args, argv, base, ccts, reference_cct, calibration_iops,
+                         responses.readings, slope_target, ch_target, result, error, runs,
+                         responses.evaluations, time.perf_counter() - t0)
     write_outputs(out, summary, runs, responses.evaluations)
     print(markdown(summary, responses.evaluations))
     return 1 if error else 0
 
 
-def summary_of(mode, args, argv, base, ccts, reference_cct, slope_target, ch_target, result,
-               error, runs, evaluations, wall_s) -> dict:
+def summary_of(mode, args, argv, base, ccts, reference_cct, calibration_iops, readings,
+               slope_target, ch_target, result, error, runs, evaluations, wall_s) -> dict:
     """The fit's summary: what was fitted, how, from which runs."""
     development = mode == "development"
     title = ("DEVELOPMENT fit (not a clinical fit): " if development else "Clinical fit: ") + \
@@ -699,7 +787,8 @@ def summary_of(mode, args, argv, base, ccts, reference_cct, slope_target, ch_tar
             "python -m studies.fit_clinical " + " ".join(shlex.quote(a) for a in argv),
         "model_version": model_version(), "resolution": args.resolution,
         "instrument": args.instrument, "readings": "raw" if args.raw else "calibrated",
-        "reading_names": dict(RAW_READINGS), "reference_eye": {**base, "CCT_mm": reference_cct},
+        "reading_names": readings, "reference_eye": {**base, "CCT_mm": reference_cct},
+        "calibration_iops_mmHg": list(calibration_iops or []),
         "ccts_mm": list(ccts),
         "targets": {"cct_slope": asdict(slope_target), "CH": asdict(ch_target)},
         "ranges": {p.name: asdict(p) for p in (SHEAR, RATIO)},
@@ -708,8 +797,10 @@ def summary_of(mode, args, argv, base, ccts, reference_cct, slope_target, ch_tar
         "sensitivities": sensitivities(
             [(e[SHEAR.name], e[RATIO.name], e["value"]) for e in evaluations
              if e["response"] == "cct_slope"],
-            [(r[SHEAR.name], r[RATIO.name], r["CH"]) for r in runs
-             if r["status"] == "ok" and r["thickness"] == reference_cct and r["CH"] is not None],
+            [(e[SHEAR.name], e[RATIO.name], e["value"]) for e in evaluations
+             if e["response"] == "CH"]
+            + [(e[SHEAR.name], e[RATIO.name], e["CH_at_reference"]) for e in evaluations
+               if e["response"] == "cct_slope" and "CH_at_reference" in e],
             (result.shear, result.ratio)) if result else {},
         "solves": result.solves if result else [],
         "runs_computed": sum(1 for r in runs if r["computed"]),
