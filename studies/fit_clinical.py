@@ -33,10 +33,15 @@ position inside the bracket (it never leaves it); an edge whose response still f
 target ends the solve there.
 
 **Instrument and calibration.**  The clinical fit is the ORA's calibrated reading (issue 26: the
-ORA pulse and the calibration to the Goldmann scale).  This version of the solver has neither,
-so the study refuses ``--instrument ora`` and calibrated readings with a one-line error (exit
-code 2).  ``--instrument paper --raw --development`` runs the same fit on the paper's jet and the
-raw readings: a labelled development mode whose numbers are not a clinical fit.
+ORA pulse and the calibration to the Goldmann scale, ``airpuff_core/calibration.py``).  The
+calibration is made again at every trial (G_t, g), on its reference sweep (``airpuff calibrate``'s
+reference eye and IOPs, ``--calibration-iop``), because an instrument's calibration belongs to the
+population it was made on: a calibration made at the published values would bias the fit toward
+them.  It scales both readings by its slope b (IOPg_cal, CH_cal), so the calibrated targets ask
+for a different G_t and g than the raw ones.  What this version of the solver lacks (the ORA
+pulse, the calibration) is refused with a one-line error (exit code 2); anything but the ORA's
+calibrated readings (``--instrument paper``, ``--raw``) runs only with ``--development``: a
+labelled development mode whose numbers are not a clinical fit.
 
     python -m studies.fit_clinical --out fit_dev --instrument paper --raw --development --resolution coarse
 
