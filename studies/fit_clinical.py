@@ -43,6 +43,7 @@ pulse, the calibration) is refused with a one-line error (exit code 2); anything
 calibrated readings (``--instrument paper``, ``--raw``) runs only with ``--development``: a
 labelled development mode whose numbers are not a clinical fit.
 
+    python -m studies.fit_clinical --out fit_ora --resolution paper --workers 2
     python -m studies.fit_clinical --out fit_dev --instrument paper --raw --development --resolution coarse
 
 Every run is a point of the sweep's storage (``<out>/points/<key>.nc``, the key the hash of its
@@ -617,9 +618,10 @@ def calibration_available() -> bool:
 
 
 def check_mode(args) -> str:
-    """``clinical`` (the ORA's pulse, calibrated readings) or ``development`` (anything else,
-    only with ``--development``); what this version of the solver lacks is refused (one line,
-    exit code 2)."""
+    """``clinical`` (the ORA's pulse, calibrated readings, paper or fine resolution: coarse
+    resolution reads CH 0.4-1.6 mmHg low, docs/validation.md) or ``development`` (anything
+    else, only with ``--development``); what this version of the solver lacks is refused (one
+    line, exit code 2)."""
     if args.instrument not in instruments():
         _fail(f"instrument: {args.instrument} is not in this version of the solver (it has "
               f"{', '.join(instruments())}; issue 26's pulses); run the labelled development "
@@ -627,12 +629,16 @@ def check_mode(args) -> str:
     if not args.raw and not calibration_available():
         _fail("readings: calibrated readings are not in this version of the solver (issue 26's "
               "calibration); run the labelled development mode with --raw --development")
-    if args.instrument == "ora" and not args.raw:
+    if args.instrument == "ora" and not args.raw and args.resolution != "coarse":
         return "clinical"
     if not args.development:
-        _fail(f"--instrument {args.instrument}{' --raw' if args.raw else ''} gives no clinical "
-              f"fit (the clinical fit is the ORA's calibrated reading): add --development to run "
-              f"the labelled development mode")
+        what = " ".join(f for f, on in ((f"--instrument {args.instrument}", True),
+                                        ("--raw", args.raw),
+                                        ("--resolution coarse", args.resolution == "coarse"))
+                        if on)
+        _fail(f"{what} gives no clinical fit (the clinical fit is the ORA's calibrated reading "
+              f"at paper or fine resolution): add --development to run the labelled "
+              f"development mode")
     return "development"
 
 
@@ -777,7 +783,9 @@ def summary_of(mode, args, argv, base, ccts, reference_cct, calibration_iops, re
     note = ("Development mode: the paper's jet and/or raw readings stand in for the ORA pulse "
             "and the Goldmann-calibrated readings (issue 26). These numbers exercise the fit; "
             "they are not fitted tissue values and make no clinical claim."
-            if development else "The ORA pulse and the calibrated readings.")
+            if development else "The ORA pulse and the calibrated readings (the calibration made "
+            "again at every trial). The numbers are the model version's: valid as a clinical fit "
+            "only with settled numerics (docs/validation.md, the sound speed).")
     fitted = {}
     if result is not None:
         fitted = {SHEAR.name: {"value": result.shear, "status": result.shear_status,
