@@ -33,6 +33,7 @@ from .dirichlet_neumann import DirichletNeumann
 from .fluid_stepper import STRAIN_LIMIT, FluidStepper
 from .geometry import build_chamber, chamber_volume
 from .globe import globe_for_run
+from .globe.motion import eye_for_run, pulse_force
 from .loads import pulse_for_run
 from .params import RunParams
 from .step_control import StepControl
@@ -79,6 +80,10 @@ class CoupledModel:
         self.coupling = DirichletNeumann(si.coupling_tol, params.max_coupling_iterations, N)
         self.last_substeps = 0
         self.max_cond = float(self.fluid.ops_n.cond.max())
+        self._pulse_pressure = np.empty(N)  # Pa, the pulse on the cornea's nodes (pulse_force)
+        # the whole eye's motion behind the cornea (globe/motion.py), driven by the pulse's force
+        self.eye = eye_for_run(params, si)
+        self.eye.start(self.pulse_force())
 
     def _start_cornea_at_rest(self):
         """The cornea starts in the exact discrete equilibrium under IOP (and p_a(0) with
@@ -175,6 +180,7 @@ class CoupledModel:
                           self.fluid.rho)
         self.control.end_step(self.fluid.max_speed())
         self.fluid.interface_pressure(c, self.p_interface)
+        self.eye.advance(dt, self.pulse_force)
         if self.jet.watches_applanation:
             self.jet.observe(self.t, self.apex_curvature())
 
@@ -216,8 +222,24 @@ class CoupledModel:
         return apex_curvature(self.X, self.Y, self.n_apex_fit)
 
     def apex_displacement(self):
-        """Inward displacement of the apex since t = 0 [m]."""
+        """Inward displacement of the apex since t = 0 against the limbus [m]: the deflection."""
         return self.apex_y0 - self.Y[0]
+
+    def apex_deformation(self):
+        """Inward displacement of the apex since t = 0 as the instrument sees it [m]: the
+        deflection plus the whole eye's movement away from the nozzle (0 with eye_motion=none)."""
+        return self.apex_displacement() + self.eye.displacement
+
+    def apex_deformation_velocity(self):
+        """Inward velocity of the apex as the instrument sees it [m/s]: the apex's against the
+        limbus plus the whole eye's."""
+        return -self.VY[0] + self.eye.velocity
+
+    def pulse_force(self):
+        """The net axial force [N] of the air pulse on the cornea at the current state, positive
+        away from the nozzle (``globe.motion.pulse_force``): what pushes the whole eye back."""
+        self.jet.pressures(self.t, self.chamber.phi_cornea, self._pulse_pressure)
+        return pulse_force(self.X, self.Y, self._pulse_pressure)
 
     def cornea_chamber_volume(self):
         """Volume of the chamber bounded by the cornea and the walls at rest [m^3]."""

@@ -14,9 +14,16 @@ and Kotecha et al., IOVS 47 (2006) 5337), without the device's calibration const
 
     CRF = P1 - 0.7 P2   (corneal resistance factor),   IOPcc_ora = P2 - 0.43 P1
 
-DA (deformation amplitude) and t_HC are the maximum of the stored ``apex_displacement`` history
-and its time; the peak inward/outward apex speeds come from ``apex_velocity``.  A run in which
-the cornea never applanates is not an error: the applanation metrics are NaN with a reason.
+The Corvis ST's outputs (docs/model.md section 7): DA (deformation amplitude) and t_HC (highest
+concavity) are the maximum of the ``apex_deformation`` history (the apex as the instrument sees
+it: the deflection against the limbus plus the whole eye's movement, ``globe/motion.py``) and its
+time; the deflection amplitude the maximum of ``apex_displacement`` (without the eye's movement);
+WEM the maximum of ``eye_displacement`` and its time; at t_HC, DA = deflection + WEM.  The peak
+distance is the ``peak_distance`` history at t_HC (``peak_distance``), and the apex velocities at
+the applanations are the instrument's (the eye's velocity included), interpolated between steps
+like P1 and P2.  The peak inward/outward apex speeds come from ``apex_velocity`` (against the
+limbus).  A run in which the cornea never applanates is not an error: the applanation metrics are
+NaN with a reason.
 """
 
 from __future__ import annotations
@@ -37,6 +44,24 @@ def _crossings(t, f, downward):
     return out
 
 
+def peak_distance(x, y):
+    """The distance [units of x] between the two peaks of an axisymmetric profile y(x) (x >= 0
+    from the axis, y towards the nozzle): 2 x_p, with x_p the most anterior point of the
+    profile, located within its nodes by the vertex of the parabola through the highest node
+    and its two neighbours.  NaN when the apex (x = 0) is the highest point (no concavity) or
+    the highest node is the last one (no vertex between nodes)."""
+    k = int(np.argmax(y))
+    if k == 0 or k == len(y) - 1:
+        return math.nan
+    x0, x1, x2 = x[k - 1], x[k], x[k + 1]
+    y0, y1, y2 = y[k - 1], y[k], y[k + 1]
+    # y = A x^2 + B x + C through the three nodes; vertex at -B / (2 A)
+    denom = (x0 - x1) * (x0 - x2) * (x1 - x2)
+    A = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / denom
+    B = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / denom
+    return float(2.0 * (-B / (2.0 * A)))
+
+
 BUDGET_PARTS = ("fluid", "equilibrium", "overstress", "inertia")
 
 # The coefficients of the applanation readings: the paper's IOPcc (P1 - 0.43 P2), and the two the
@@ -55,28 +80,46 @@ def applanation_readings(p1, p2) -> dict:
 
 
 def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms,
-                    step_budget=None):
+                    step_budget=None, step_velocity=None):
     """Return (metrics, notes, extra diagnostics).  ``step_budget`` (steps, 4): the apex force
     budget at every step [mmHg] (``CoupledModel.apex_budget``: the jet's mean over the apex
     nodes, fluid pressure, equilibrium resistance, viscoelastic overstress, inertia),
     interpolated to the applanations like the fluid pressure:
     P1 = P1_profile + P1_fluid + P1_equilibrium + P1_overstress + P1_inertia + P1_residual, with
     P1_profile = P1 minus the jet's mean over the apex nodes (its spatial decay) and P1_residual
-    what the discrete balance leaves (likewise P2); CH_<part> = P1_<part> - P2_<part>."""
+    what the discrete balance leaves (likewise P2); CH_<part> = P1_<part> - P2_<part>.
+    ``step_velocity``: the apex's inward velocity as the instrument sees it at every step [m/s]
+    (v_A1, v_A2)."""
     nan = math.nan
     m = {k: nan for k in ("P1", "P2", "CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora", "t_A1", "t_A2",
-                          "t_HC", "hc_delay", "DA", "v_in_max", "v_out_max")}
+                          "t_HC", "hc_delay", "DA", "deflection_amplitude",
+                          "deflection_amplitude_HC", "WEM_max", "t_WEM_max", "WEM_HC",
+                          "peak_distance", "v_A1", "v_A2", "v_in_max", "v_out_max")}
     for part in ("profile",) + BUDGET_PARTS + ("residual",):
         for k in ("P1", "P2", "CH"):
             m[f"{k}_{part}"] = nan
     notes = {}
     extra = {}
-    disp = hist["apex_displacement"]
-    i_max = int(np.nanargmax(disp))
-    m["DA"] = float(disp[i_max])
-    m["t_HC"] = float(time_ms[i_max])
+    deformation = hist["apex_deformation"]
+    i_hc = int(np.nanargmax(deformation))
+    m["DA"] = float(deformation[i_hc])
+    m["t_HC"] = float(time_ms[i_hc])
     # a pulse switched off by the eye that never applanated has no peak time (inf)
     m["hc_delay"] = m["t_HC"] - t0_ms if math.isfinite(t0_ms) else nan
+    m["deflection_amplitude"] = float(np.nanmax(hist["apex_displacement"]))
+    m["deflection_amplitude_HC"] = float(hist["apex_displacement"][i_hc])
+    eye = hist["eye_displacement"]
+    i_wem = int(np.nanargmax(eye))
+    m["WEM_max"] = float(eye[i_wem])
+    m["WEM_HC"] = float(eye[i_hc])
+    if m["WEM_max"] > 0.0:
+        m["t_WEM_max"] = float(time_ms[i_wem])
+    else:
+        notes["t_WEM_max"] = "the eye never moved back (eye_motion=none)"
+    m["peak_distance"] = float(hist["peak_distance"][i_hc])
+    if not math.isfinite(m["peak_distance"]):
+        notes["peak_distance"] = ("the apex was the cornea's most anterior point at the highest "
+                                  "concavity")
     vel = hist["apex_velocity"]
     m["v_in_max"] = float(np.nanmax(vel))
     m["v_out_max"] = float(-np.nanmin(vel))
@@ -90,6 +133,7 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         m["t_A1"] = tA1
         m["P1"] = jet_apex(tA1)
         extra["fluid_pressure_apex_at_A1"] = step_fluid_p[i] + s * (step_fluid_p[i + 1] - step_fluid_p[i])
+        m["v_A1"] = _at(step_velocity, i, s)
         _split(m, "P1", step_budget, i, s)
         up = [u for u in up if u[0] > tA1]
         if up:
@@ -98,12 +142,13 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
             m["P2"] = jet_apex(tA2)
             extra["fluid_pressure_apex_at_A2"] = (step_fluid_p[i]
                                                   + s * (step_fluid_p[i + 1] - step_fluid_p[i]))
+            m["v_A2"] = _at(step_velocity, i, s)
             _split(m, "P2", step_budget, i, s)
         else:
-            for k in ("t_A2", "P2"):
+            for k in ("t_A2", "P2", "v_A2"):
                 notes[k] = "the cornea did not return to convex before the end of the run"
     else:
-        for k in ("t_A1", "P1", "t_A2", "P2"):
+        for k in ("t_A1", "P1", "t_A2", "P2", "v_A1", "v_A2"):
             notes[k] = "the cornea never applanated (apex curvature stayed convex)"
     if math.isfinite(m["P1"]) and math.isfinite(m["P2"]):
         m.update(applanation_readings(m["P1"], m["P2"]))
@@ -113,6 +158,13 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         for k in ("CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora"):
             notes[k] = "needs both applanations"
     return m, notes, extra
+
+
+def _at(step_series, i, s):
+    """A step-level series interpolated between steps i and i + 1 at s (NaN without one)."""
+    if step_series is None:
+        return math.nan
+    return float(step_series[i] + s * (step_series[i + 1] - step_series[i]))
 
 
 def _split(m, name, step_budget, i, s):

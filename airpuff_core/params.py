@@ -212,6 +212,15 @@ PARAMETERS: dict[str, ParamSpec] = {
            "Friedenwald's ocular rigidity K of the compliant globe, dP/dV = ln(10) K P "
            "(globe=compliant; in-vivo mean 0.0126, Pallikaris et al. 2005)",
            si=("ocular_rigidity_per_m3", 1.0, UL_M3)),
+        _p("eye_mass", "g", 7.5, 0.0, 100.0,
+           "mass of the globe moving with eye_motion=spring_damper (adult human eye about 7.5 g, "
+           "docs/model.md section 14)", si=("eye_mass_kg", 1e-3)),
+        _p("eye_spring", "N/m", 350.0, 0.0, 1.0e5,
+           "axial spring of the orbit behind the globe (eye_motion=spring_damper; 350: Kling et "
+           "al. 2014, table 3)", low_inc=True),
+        _p("eye_damper", "N s/m", 100.0, 0.0, 1.0e5,
+           "axial damper of the orbit behind the globe (eye_motion=spring_damper; 100 kg/s: Kling "
+           "et al. 2014, table 3)", low_inc=True),
     ]
 }
 
@@ -227,6 +236,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "cornea": CORNEA_CHOICES,
     "limbus": ("clamped", "pinned"),
     "instrument": ("paper", "ora", "corvis"),
+    "eye_motion": ("none", "spring_damper"),
 }
 # the numeric parameters only one instrument's pulse reads (``a`` is read by all); another
 # instrument refuses them away from their defaults
@@ -248,6 +258,7 @@ CHOICE_DEFAULTS = {
     "cornea": None,
     "limbus": "clamped",
     "instrument": "paper",
+    "eye_motion": "none",
 }
 CHOICE_DESCRIPTIONS = {
     "resolution": "node count: coarse (~300 fluid nodes), paper (~1100), fine (~4500)",
@@ -274,6 +285,9 @@ CHOICE_DESCRIPTIONS = {
                   "after the first applanation it detects, falling at ora_fall_rate) or corvis "
                   "(the Corvis ST's measured profile, peak 12.6 kPa at 18 ms); every one with "
                   "the spatial decay a",
+    "eye_motion": "whole-eye motion: none (the eye stays put, the paper's) or spring_damper (the "
+                  "globe a rigid body of eye_mass on the orbit's eye_spring and eye_damper, pushed "
+                  "back by the air pulse; DA then includes its movement)",
 }
 
 

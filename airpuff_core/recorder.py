@@ -26,7 +26,7 @@ from .coupling import CoupledModel
 from .dataset import decodable_ms
 from .energy import EnergyBudget
 from .fluid import KAPPA
-from .metrics import compute_metrics
+from .metrics import compute_metrics, peak_distance
 from .params import MMHG_PA
 from .result import HISTORIES, SNAPSHOT_LABELS, RunResult
 from .threads import current_threads
@@ -39,6 +39,9 @@ def probe(model: CoupledModel, budget: EnergyBudget, full: bool = True) -> dict[
     need."""
     values = {
         "apex_displacement": model.apex_displacement() * 1e3,
+        "apex_deformation": model.apex_displacement() * 1e3 + model.eye.displacement * 1e3,
+        "eye_displacement": model.eye.displacement * 1e3,
+        "eye_velocity": model.eye.velocity,
         "apex_velocity": -model.VY[0],
         "apex_curvature": model.apex_curvature() * 1e-3,
         "fluid_pressure_apex": model.p_interface[0] / MMHG_PA,
@@ -51,6 +54,8 @@ def probe(model: CoupledModel, budget: EnergyBudget, full: bool = True) -> dict[
     }
     if full:
         values["apex_bending_moment"] = model.apex_moment() * 1e3
+        values["pulse_force"] = model.pulse_force() * 1e3
+        values["peak_distance"] = peak_distance(model.X, model.Y) * 1e3
         values.update(budget.terms(model))
     return values
 
@@ -91,6 +96,8 @@ class Recorder:
         self.step_t = [0.0]  # ms
         self.step_kappa = [first["apex_curvature"]]
         self.step_fluid_p = [first["fluid_pressure_apex"]]
+        # the apex's inward velocity as the instrument sees it (metrics: v_A1, v_A2)
+        self.step_velocity = [model.apex_deformation_velocity()]
         self.step_budget = [apex_budget_mmhg(model)]  # the apex force budget (metrics.py)
         self.snapshots = {label: None for label in SNAPSHOT_LABELS}
         self.snapshot_t = {label: math.nan for label in SNAPSHOT_LABELS}
@@ -134,6 +141,7 @@ class Recorder:
         self.step_t.append(t * 1e3)
         self.step_kappa.append(cur["apex_curvature"])
         self.step_fluid_p.append(cur["fluid_pressure_apex"])
+        self.step_velocity.append(model.apex_deformation_velocity())
         self.step_budget.append(apex_budget_mmhg(model))
         self._take_event_snapshots(model)
         self._interpolate_histories(model, cur)
@@ -165,8 +173,8 @@ class Recorder:
             s = (out_t[i] - t_prev) / (t - t_prev)
             for k in cur:
                 hist[k][i] = prev[k] + s * (cur[k] - prev[k])
-            if hist["apex_displacement"][i] > self._best_da:
-                self._best_da = hist["apex_displacement"][i]
+            if hist["apex_deformation"][i] > self._best_da:
+                self._best_da = hist["apex_deformation"][i]
                 self._take("max_displacement", model)
             self._next_out += 1
 
@@ -182,7 +190,7 @@ class Recorder:
             self.out_t * 1e3, hist, np.array(self.step_t), np.array(self.step_kappa),
             np.array(self.step_fluid_p),
             lambda t_ms: model.jet.at_apex(t_ms * 1e-3) / MMHG_PA, model.jet.peak_time * 1e3,
-            np.array(self.step_budget))
+            np.array(self.step_budget), np.array(self.step_velocity))
         diagnostics = self._diagnostics(model, wall_s)
         diagnostics.update(extra)
         # the output times as the run's netCDF stores them (``decodable_ms``), so that the result

@@ -35,11 +35,26 @@ METRICS: dict[str, tuple[str, str]] = {
                           "the device's scale and constant)"),
     "t_A1": ("ms", "time of the first applanation"),
     "t_A2": ("ms", "time of the second applanation"),
-    "t_HC": ("ms", "time of highest concavity (maximum apex displacement)"),
+    "t_HC": ("ms", "time of highest concavity (the maximum of apex_deformation; Corvis HC time)"),
     "hc_delay": ("ms", "delay of the highest concavity after the jet peak"),
-    "DA": ("mm", "deformation amplitude (maximum inward apex displacement)"),
-    "v_in_max": ("m/s", "peak inward apex velocity"),
-    "v_out_max": ("m/s", "peak outward apex velocity"),
+    "DA": ("mm", "deformation amplitude: maximum inward apex displacement as the instrument sees "
+                 "it, the deflection plus the whole eye's movement (Corvis DA)"),
+    "deflection_amplitude": ("mm", "maximum inward apex displacement against the limbus, without "
+                                   "the whole eye's movement (Corvis deflection amplitude max)"),
+    "deflection_amplitude_HC": ("mm", "apex displacement against the limbus at the highest "
+                                      "concavity (DA = deflection_amplitude_HC + WEM_HC)"),
+    "WEM_max": ("mm", "maximum whole-eye movement away from the nozzle (Corvis WEM max; 0 with "
+                      "eye_motion=none)"),
+    "t_WEM_max": ("ms", "time of the maximum whole-eye movement"),
+    "WEM_HC": ("mm", "whole-eye movement at the highest concavity"),
+    "peak_distance": ("mm", "distance between the two peaks (most anterior points) of the deformed "
+                            "cornea's mid-surface at the highest concavity (Corvis peak distance)"),
+    "v_A1": ("m/s", "inward apex velocity at the first applanation as the instrument sees it, the "
+                    "eye's movement included (Corvis A1 velocity)"),
+    "v_A2": ("m/s", "inward apex velocity at the second applanation as the instrument sees it, "
+                    "negative outward (Corvis A2 velocity)"),
+    "v_in_max": ("m/s", "peak inward apex velocity against the limbus"),
+    "v_out_max": ("m/s", "peak outward apex velocity against the limbus"),
 }
 # the raw readings that have a calibrated form (netCDF attribute calibration = "raw")
 RAW_READINGS = ("P1", "P2", "CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora")
@@ -60,8 +75,17 @@ for _name, _long in (("P1", "first applanation"), ("P2", "second applanation"),
 
 # history name -> (unit, long name)
 HISTORIES: dict[str, tuple[str, str]] = {
-    "apex_displacement": ("mm", "apex displacement, positive inward"),
-    "apex_velocity": ("m/s", "apex velocity, positive inward"),
+    "apex_displacement": ("mm", "apex displacement against the limbus (the deflection), positive "
+                          "inward"),
+    "apex_velocity": ("m/s", "apex velocity against the limbus, positive inward"),
+    "apex_deformation": ("mm", "apex displacement as the instrument sees it: apex_displacement "
+                         "plus eye_displacement, positive inward"),
+    "eye_displacement": ("mm", "whole-eye movement away from the nozzle (0 with eye_motion=none)"),
+    "eye_velocity": ("m/s", "whole-eye velocity away from the nozzle"),
+    "pulse_force": ("mN", "net axial force of the air pulse on the deformed cornea, positive away "
+                    "from the nozzle: what pushes the whole eye back"),
+    "peak_distance": ("mm", "distance between the two peaks (most anterior points) of the "
+                      "cornea's mid-surface; NaN while the apex is the most anterior point"),
     "apex_curvature": ("1/mm", "apical curvature of the cornea, positive convex"),
     "jet_pressure_apex": ("mmHg", "air-jet pressure at the apex"),
     "fluid_pressure_apex": ("mmHg", "fluid pressure at the apex"),

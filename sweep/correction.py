@@ -10,8 +10,8 @@ format and the measured accuracy.
   CCT [um] and DA [mm].  The readings are the model's raw ones (``calibration: "raw"``, names
   ending in ``_raw``): the jet pressure at the apex at the applanations, with no instrument
   calibration.  The Corvis IOPnc is the raw P1 (the first-applanation jet pressure), and its DA
-  the apex deflection against the fixed limbus, until the model has the Corvis pulse and
-  whole-eye motion.  A calibrated reading is switched in by a new :class:`Reading` (its sweep
+  the model's DA: the apex deflection against the limbus plus the whole eye's movement
+  (``eye_motion = spring_damper``; with the default ``none`` the deflection alone).  A calibrated reading is switched in by a new :class:`Reading` (its sweep
   variable and calibration name); nothing else changes.
 * **Form**: a polynomial of total degree d in the readings, each scaled to [-1, 1] over the fitted
   range, z = (x - center) / half_range; coefficients by linear least squares (numpy).
@@ -96,8 +96,8 @@ INSTRUMENTS: dict[str, tuple[Reading, ...]] = {
                 "(the model's P1; the Corvis ST's own pulse is not modelled yet)"),
         _CCT,
         Reading("DA_raw", "DA", ("DefAmp", "Def. Amp. Max"), "mm", "DA", 1.0, "raw",
-                "apex deflection amplitude against the fixed limbus (the model has no whole-eye "
-                "motion yet, so this is the Corvis deflection amplitude, not its DA)"),
+                "deformation amplitude: the apex deflection against the limbus plus the whole "
+                "eye's movement (eye_motion=spring_damper; with none, the deflection amplitude)"),
     ),
 }
 

@@ -57,7 +57,9 @@ def test_netcdf_contract(coarse_run):
     assert float(ds.thickness) == 0.5 and ds.thickness.attrs["units"] == "mm"
     assert float(ds.pmax) == 10.0 and ds.pmax.attrs["units"] == "kPa"
     assert json.loads(ds.attrs["parameters_json"])["resolution"] == "coarse"
-    # DA is the maximum of the stored displacement history, at t_HC
+    # DA is the maximum of the stored displacement history, at t_HC (the eye at rest: the
+    # instrument's displacement is the deflection)
+    assert np.array_equal(ds.apex_deformation.values, ds.apex_displacement.values)
     assert m["DA"] == float(ds.apex_displacement.max())
     assert m["t_HC"] == float(ds.time[int(np.argmax(ds.apex_displacement.values))])
     # the stored jet history follows eq. (11)
@@ -147,6 +149,8 @@ def test_missing_applanation_is_null_in_json(tmp_path):
     (["--IOP", "nan"], "IOP"),
     (["--resolution", "ultra"], "resolution"),
     (["--pmax", "-1"], "pmax"),
+    (["--eye-motion", "free"], "eye_motion"),
+    (["--eye-mass", "0"], "eye_mass"),
 ])
 def test_bad_input_exits_2_with_one_line(args, name):
     proc = airpuff("run", *args, "--json")
