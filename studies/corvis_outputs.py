@@ -124,12 +124,13 @@ def main(argv=None):
             "-" if not math.isfinite(row[k]) else f"{row[k]:.{nd}f}" for k, _, nd in SHOWN) + " |")
     lines.append("| Corvis normals | " + " | ".join(NORMALS.get(k, "") for k, _, _ in SHOWN) + " |")
     if len(rows) >= 2:
+        lines.append("")
         x = np.array(list(rows))
         for k in ("DA", "deflection_amplitude", "t_A1", "t_A2", "t_HC"):
             y = np.array([rows[i][k] for i in rows])
             ok = np.isfinite(y)
             slope = np.polyfit(x[ok], y[ok], 1)[0]
-            lines.append(f"\nslope of {k} against IOP ({x[ok].min():g}-{x[ok].max():g} mmHg): "
+            lines.append(f"- slope of {k} against IOP ({x[ok].min():g}-{x[ok].max():g} mmHg): "
                          f"{slope:+.4f} per mmHg")
     if 16.0 in rows:
         lines += ["", "Orbits under the IOP 16 run's pulse force (7.5 g eye): Kling's, then for "
