@@ -57,11 +57,12 @@ COMMAND = "airpuff calibrate"
 REFERENCE_EYE = {"thickness": 0.52, "E0": 0.5, "R": 7.0}
 
 # The parameters of the eye, across which a calibration applies (the patient's tissue, pressure
-# and geometry); every other parameter (the instrument's pulse, the model, the numerics) must be
-# the reference sweep's.
+# and geometry, and the whole eye's motion in the orbit, which does not act back on P1 and P2:
+# docs/model.md section 14); every other parameter (the instrument's pulse, the model, the
+# numerics) must be the reference sweep's.
 EYE_PARAMETERS = ("E0", "IOP", "thickness", "R", "r_post", "alpha0", "rho_cornea", "rho_fluid",
                   "mu", "nu", "fung_k", "ve_g", "ve_tau", "transverse_shear_modulus",
-                  "ocular_rigidity")
+                  "ocular_rigidity", "eye_motion", "eye_mass", "eye_spring", "eye_damper")
 
 # calibrated reading -> (unit, long name); the raw reading of each is the name without "_cal"
 # (IOPnc_cal's raw reading is P1)
