@@ -55,7 +55,7 @@ class CoupledModel:
         si = self.si = params.si()
         ch = self.chamber = build_chamber(params.geometry, params.layout, params.resolution,
                                           si.R_m, si.r_post_m, si.alpha0_rad)
-        self.jet = pulse_for_run(params, si)
+        self.jet = pulse_for_run(params, si, ch.phi_cornea)
         self.cornea = cornea_for_run(params, ch.phi_cornea)
         self.fluid = FluidStepper(si, ch, params.hyperviscosity_operator, reuse,
                                   STRAIN_LIMIT if strain_limit is None else strain_limit)
@@ -138,7 +138,7 @@ class CoupledModel:
         p_interface_n = self._p_interface_n
         fluid.interface_pressure(c, p_interface_n)
         X, Y, VX, VY = self._cornea_trial
-        jet = self.jet.kernel_args
+        jet = self.jet
         t = self.t
 
         def interface_pressure(p_est, p_new):

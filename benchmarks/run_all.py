@@ -19,8 +19,8 @@ import os
 import platform
 import sys
 
-from benchmarks import (bench_compile, bench_mfpm, bench_shell, bench_sweep, interleaved,
-                        run_default, scaling, yardstick)
+from benchmarks import (bench_compile, bench_mfpm, bench_pulse, bench_shell, bench_sweep,
+                        interleaved, run_default, scaling, yardstick)
 
 # the main of 2026-12-04 before issue 31's changes: the "before" of the clinical point
 BASELINE = "c8ce7b3"
@@ -32,6 +32,7 @@ def main(argv):
     yardstick.main(["--repeat", "3"])
     bench_compile.main()
     bench_mfpm.main()
+    bench_pulse.main([])
     run_default.main("coarse", repeat=3, threads=1)
     run_default.main("coarse", repeat=3)
     if not quick:

@@ -43,7 +43,8 @@ class CorneaModel(Protocol):
     def advance(self, X, Y, VX, VY, p_start, p_end, t_start, dt, n_sub, jet, history,
                 viscoelastic) -> None:
         """Advance (X, Y, VX, VY) in place over dt [s] in n_sub sub-steps under the fluid
-        pressure going from p_start to p_end [Pa] and the air jet ``jet`` outside; ``history``:
+        pressure going from p_start to p_end [Pa] and the air pulse ``jet`` outside (a
+        ``loads.pulse.AirPulse`` on the model's nodes: ``space``, ``kernel_args``); ``history``:
         the tissue law's trial history (``tissue``), advanced when ``viscoelastic``."""
 
     def internal_forces(self, X, Y, history) -> tuple[np.ndarray, np.ndarray]:

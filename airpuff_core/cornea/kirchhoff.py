@@ -209,13 +209,15 @@ class KirchhoffShell(MembraneModel):
                 viscoelastic=False):
         """Advance the state (X, Y [m], VX, VY [m/s], in place) from t_start to t_start + dt [s] in
         n_sub Verlet sub-steps, with the fluid pressure on the cornea going linearly from p_start
-        to p_end [Pa] and the air jet ``jet`` (``AirJet.kernel_args``) outside.  ``history``: the
+        to p_end [Pa] and the air pulse ``jet`` (a ``loads.pulse.AirPulse`` on these nodes)
+        outside.  ``history``: the
         tissue law's trial history (``begin_trial()``), advanced in place when
         ``viscoelastic``."""
         Fx, Fy, q = self._forces
-        advance_shell(X, Y, VX, VY, self.mass, self.phi, self.L0, self.S0, self.A0,
+        advance_shell(X, Y, VX, VY, self.mass, jet.space, self.L0, self.S0, self.A0,
                       *self.bending_args(), self.Ebar, self.nu, self.k, self.D, p_start, p_end,
-                      t_start, dt, n_sub, jet, self.work, Fx, Fy, q, viscoelastic, *history)
+                      t_start, dt, n_sub, jet.kernel_args, self.work, Fx, Fy, q, viscoelastic,
+                      *history)
 
 
 def shell_fields(membrane: MembraneModel, X_ref, Y_ref, D, limbus) -> dict:

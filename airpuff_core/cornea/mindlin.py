@@ -226,7 +226,7 @@ class MindlinShell(KirchhoffShell):
         beta, omega = self._trial
         beta[:] = self.beta
         omega[:] = self.omega
-        advance_mindlin(X, Y, VX, VY, beta, omega, self.mass, self.inertia, self.phi, self.L0,
+        advance_mindlin(X, Y, VX, VY, beta, omega, self.mass, self.inertia, jet.space, self.L0,
                         self.S0, self.A0, self.psi_ref, self.beta_ref, self.x_mid, self.limbus,
                         self.Ebar, self.nu, self.k, self.D, self.S, p_start, p_end, t_start, dt,
-                        n_sub, jet, self.work, Fx, Fy, T, q, viscoelastic, *history)
+                        n_sub, jet.kernel_args, self.work, Fx, Fy, T, q, viscoelastic, *history)

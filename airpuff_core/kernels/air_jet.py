@@ -16,6 +16,10 @@ kind:
   t_start + k dt, 0 outside them.
   t_off = inf (never switched off) unless the pulse sets it while the run goes on
   (``loads/ora.py``: a fixed delay after the first applanation it detects).
+
+Every kind is a factor of phi times a factor of t (``pulse_space_factor``, ``pulse_time_factor``):
+the cornea kernels take the space factor on their nodes, made once per run (``pulse_space``), and
+evaluate the time factor once per sub-step.
 """
 
 import numpy as np
@@ -61,12 +65,38 @@ def pulse_amplitude(t, jet):
 
 
 @njit(cache=True)
-def pulse_pressure(t, phi, jet):
-    """p_a(t, phi) [Pa] of any pulse kind (module docstring)."""
-    if jet[0] == PAPER:
-        return air_jet(t, phi, jet[1], jet[2], jet[3], jet[4], jet[5])
+def pulse_space_factor(phi, jet):
+    """The pulse's factor of the reference angle phi: pmax exp(-a sin^2 phi) [Pa] for the
+    paper's jet, exp(-a sin^2 phi) for the others."""
     s = np.sin(phi)
-    return pulse_amplitude(t, jet) * np.exp(-jet[SPATIAL_DECAY] * s * s)
+    if jet[KIND] == PAPER:
+        return jet[1] * np.exp(-jet[2] * s * s)
+    return np.exp(-jet[SPATIAL_DECAY] * s * s)
+
+
+@njit(cache=True)
+def pulse_time_factor(t, jet):
+    """The pulse's factor of the time t [s]: exp(-b (t - t0)^2 / T^2) for the paper's jet, A(t)
+    [Pa] for the others."""
+    if jet[KIND] == PAPER:
+        b, T, t0 = jet[3], jet[4], jet[5]
+        return np.exp(-b * (t - t0) * (t - t0) / (T * T))
+    return pulse_amplitude(t, jet)
+
+
+@njit(cache=True)
+def pulse_pressure(t, phi, jet):
+    """p_a(t, phi) [Pa] of any pulse kind (module docstring): the space factor times the time
+    factor, in the order of eq. (11) (``air_jet``), so the paper's jet has the same bits."""
+    return pulse_space_factor(phi, jet) * pulse_time_factor(t, jet)
+
+
+@njit(cache=True)
+def pulse_space(phi, jet, out):
+    """out[k] = the pulse's space factor at the reference angle phi[k] (``pulse_space_factor``):
+    made once per run, the cornea kernels multiply it by the time factor at every sub-step."""
+    for k in range(phi.shape[0]):
+        out[k] = pulse_space_factor(phi[k], jet)
 
 
 @njit(cache=True)

@@ -141,10 +141,10 @@ def mindlin_energy(X, Y, beta, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k
 
 
 @njit(cache=True)
-def _mindlin_total_forces(X, Y, beta, phi, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D,
+def _mindlin_total_forces(X, Y, beta, jet_space, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D,
                           S, p_start, p_end, frac, t, jet, work, Fx, Fy, T, q, ve_mode,
                           ve_previous, ve_overstress, ve_decay, ve_weight):
-    net_inside_pressure(phi, p_start, p_end, frac, t, jet, q)
+    net_inside_pressure(jet_space, p_start, p_end, frac, t, jet, q)
     mindlin_internal_forces(X, Y, beta, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D, S,
                             work, Fx, Fy, T, ve_mode, ve_previous, ve_overstress, ve_decay,
                             ve_weight)
@@ -152,22 +152,22 @@ def _mindlin_total_forces(X, Y, beta, phi, L0, S0, A0, psi_ref, beta_ref, x_mid,
 
 
 @njit(cache=True)
-def advance_mindlin(X, Y, VX, VY, beta, omega, mass, inertia, phi, L0, S0, A0, psi_ref, beta_ref,
+def advance_mindlin(X, Y, VX, VY, beta, omega, mass, inertia, jet_space, L0, S0, A0, psi_ref, beta_ref,
                     x_mid, limbus, Ebar, nu, k, D, S, p_start, p_end, t_start, dt, n_sub, jet,
                     work, Fx, Fy, T, q, viscoelastic, ve_previous, ve_overstress, ve_decay,
                     ve_weight):
     """Velocity-Verlet sub-steps of positions (X, Y, VX, VY) and directors (beta [rad], omega
     [rad/s]) from t_start to t_start + dt [s], in place; loads (the fluid pressure and the air
-    pulse ``jet`` of ``kernels/air_jet.py``) and viscoelasticity as in
-    ``kernels/shell.advance_shell``.  ``inertia``: rotary inertia rho h^3 / 12 A_i [kg m^2] of
+    pulse ``jet`` with its space factor ``jet_space``, ``kernels/air_jet.py``) and
+    viscoelasticity as in ``kernels/shell.advance_shell``.  ``inertia``: rotary inertia rho h^3 / 12 A_i [kg m^2] of
     each node.  Apex: x = 0, beta = 0; limbus: fixed position, beta fixed when clamped."""
     n = X.shape[0]
     h = dt / n_sub
     last_free = n - 1 if limbus == LIMBUS_CLAMPED else n  # directors 1 .. last_free - 1 move
     ve_start = 1 if viscoelastic else 0
     ve_step = 2 if viscoelastic else 0
-    _mindlin_total_forces(X, Y, beta, phi, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k, D, S,
-                          p_start, p_end, 0.0, t_start, jet, work, Fx, Fy, T, q, ve_start,
+    _mindlin_total_forces(X, Y, beta, jet_space, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k,
+                          D, S, p_start, p_end, 0.0, t_start, jet, work, Fx, Fy, T, q, ve_start,
                           ve_previous, ve_overstress, ve_decay, ve_weight)
     for m in range(n_sub):
         for i in range(n - 1):
@@ -182,7 +182,7 @@ def advance_mindlin(X, Y, VX, VY, beta, omega, mass, inertia, phi, L0, S0, A0, p
         for i in range(1, last_free):
             beta[i] += h * omega[i]
         frac = (m + 1.0) / n_sub
-        _mindlin_total_forces(X, Y, beta, phi, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k,
+        _mindlin_total_forces(X, Y, beta, jet_space, L0, S0, A0, psi_ref, beta_ref, x_mid, Ebar, nu, k,
                               D, S, p_start, p_end, frac, t_start + (m + 1) * h, jet, work, Fx,
                               Fy, T, q, ve_step, ve_previous, ve_overstress, ve_decay, ve_weight)
         for i in range(n - 1):

@@ -28,7 +28,7 @@ forces from the resultants, so a history of N and M (viscoelasticity) can act be
 import numpy as np
 from numba import njit
 
-from .air_jet import pulse_pressure
+from .air_jet import pulse_time_factor
 from .membrane import add_pressure_loads, add_segment_forces, fung_resultants, segment_strains
 from .viscoelastic import relax_in_place
 
@@ -209,19 +209,20 @@ def shell_energy(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbu
 
 
 @njit(cache=True)
-def net_inside_pressure(phi, p_start, p_end, frac, t, jet, q):
-    """q = p_start + frac (p_end - p_start) - p_jet(t, phi) [Pa] on the cornea nodes: the fluid
-    pressure interpolated within the step (frac in [0, 1]) less the air pulse ``jet``
-    (``kernels/air_jet.py``)."""
-    for i in range(phi.shape[0]):
-        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - pulse_pressure(t, phi[i], jet)
+def net_inside_pressure(jet_space, p_start, p_end, frac, t, jet, q):
+    """q = p_start + frac (p_end - p_start) - p_jet [Pa] on the cornea nodes: the fluid
+    pressure interpolated within the step (frac in [0, 1]) less the air pulse, its space factor
+    ``jet_space`` on the nodes times its time factor at t (``kernels/air_jet.py``)."""
+    time_factor = pulse_time_factor(t, jet)
+    for i in range(jet_space.shape[0]):
+        q[i] = p_start[i] + frac * (p_end[i] - p_start[i]) - jet_space[i] * time_factor
 
 
 @njit(cache=True)
-def _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
+def _shell_total_forces(X, Y, jet_space, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
                         Ebar, nu, k, D, p_start, p_end, frac, t, jet, work, Fx, Fy, q,
                         ve_mode, ve_previous, ve_overstress, ve_decay, ve_weight):
-    net_inside_pressure(phi, p_start, p_end, frac, t, jet, q)
+    net_inside_pressure(jet_space, p_start, p_end, frac, t, jet, q)
     shell_internal_forces(X, Y, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus, Ebar,
                           nu, k, D, work, Fx, Fy, ve_mode, ve_previous, ve_overstress, ve_decay,
                           ve_weight)
@@ -229,13 +230,14 @@ def _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node
 
 
 @njit(cache=True)
-def advance_shell(X, Y, VX, VY, mass, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area,
+def advance_shell(X, Y, VX, VY, mass, jet_space, L0, S0, A0, psi_ref, dual_length, x_ref, node_area,
                   limbus, Ebar, nu, k, D, p_start, p_end, t_start, dt, n_sub, jet, work, Fx, Fy,
                   q, viscoelastic, ve_previous, ve_overstress, ve_decay, ve_weight):
     """Velocity-Verlet sub-steps of the shell from t_start to t_start + dt (in place).
 
     The fluid pressure on the cornea is interpolated linearly from p_start (at t_start) to p_end;
-    the air pulse ``jet`` (``kernels/air_jet.py``) is evaluated at each sub-step.  Apex: x = 0 (the rotation
+    the air pulse (``kernels/air_jet.py``: ``jet``, its space factor ``jet_space`` on the nodes) is
+    evaluated at each sub-step.  Apex: x = 0 (the rotation
     psi = 0 there is built into the bending strains).  Limbus: fixed position (eq. 10); its
     rotation is fixed or free through the bending strains (``limbus``).
 
@@ -247,7 +249,7 @@ def advance_shell(X, Y, VX, VY, mass, phi, L0, S0, A0, psi_ref, dual_length, x_r
     h = dt / n_sub
     ve_start = 1 if viscoelastic else 0  # the state at t_start: its overstresses as stored
     ve_step = 2 if viscoelastic else 0
-    _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
+    _shell_total_forces(X, Y, jet_space, L0, S0, A0, psi_ref, dual_length, x_ref, node_area, limbus,
                         Ebar, nu, k, D, p_start, p_end, 0.0, t_start, jet, work, Fx, Fy, q,
                         ve_start, ve_previous, ve_overstress, ve_decay, ve_weight)
     for m in range(n_sub):
@@ -259,7 +261,7 @@ def advance_shell(X, Y, VX, VY, mass, phi, L0, S0, A0, psi_ref, dual_length, x_r
             X[i] += h * VX[i]
             Y[i] += h * VY[i]
         frac = (m + 1.0) / n_sub
-        _shell_total_forces(X, Y, phi, L0, S0, A0, psi_ref, dual_length, x_ref, node_area,
+        _shell_total_forces(X, Y, jet_space, L0, S0, A0, psi_ref, dual_length, x_ref, node_area,
                             limbus, Ebar, nu, k, D, p_start, p_end, frac, t_start + (m + 1) * h,
                             jet, work, Fx, Fy, q, ve_step, ve_previous, ve_overstress, ve_decay,
                             ve_weight)

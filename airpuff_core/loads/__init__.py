@@ -9,6 +9,7 @@ from .ora import OraPulse
 PULSES = {"paper": AirJet, "ora": OraPulse, "corvis": CorvisPulse}
 
 
-def pulse_for_run(params, si):
-    """The air pulse of a run (``RunParams`` params, its ``SIParams`` si)."""
-    return PULSES[params.instrument](si)
+def pulse_for_run(params, si, phi):
+    """The air pulse of a run (``RunParams`` params, its ``SIParams`` si) on the cornea's nodes
+    of reference angles phi [rad]."""
+    return PULSES[params.instrument](si, phi)

@@ -35,17 +35,19 @@ CORVIS_APEX_MMHG = (
 
 
 class CorvisPulse(AirPulse):
-    """The Corvis ST's pulse of a run (``SIParams`` si: a)."""
+    """The Corvis ST's pulse of a run (``SIParams`` si: a) on the cornea's nodes of reference
+    angles phi [rad]."""
 
     name = "corvis"
 
-    def __init__(self, si):
+    def __init__(self, si, phi):
         samples = np.asarray(CORVIS_APEX_MMHG) * MMHG_PA  # Pa
         # (TABLE, a, t_off [s] (never), r_fall [Pa/s] (unused), t_start [s], dt [s], f_k [Pa])
         self.kernel_args = np.concatenate((
             [TABLE, si.a, math.inf, 0.0, CORVIS_START_MS * 1e-3, CORVIS_STEP_MS * 1e-3],
             samples))
         self._peak_time = (CORVIS_START_MS + CORVIS_STEP_MS * int(np.argmax(samples))) * 1e-3
+        self.set_nodes(phi)
 
     @property
     def peak_time(self):

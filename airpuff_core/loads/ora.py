@@ -28,18 +28,19 @@ from .pulse import AirPulse, first_crossing_time
 
 class OraPulse(AirPulse):
     """The ORA's pulse of a run (``SIParams`` si: a, ora_rise_rate_Pa_per_s, ora_delay_s,
-    ora_fall_rate_Pa_per_s)."""
+    ora_fall_rate_Pa_per_s) on the cornea's nodes of reference angles phi [rad]."""
 
     name = "ora"
     watches_applanation = True
 
-    def __init__(self, si):
+    def __init__(self, si, phi):
         # (RAMP, a, t_off [s], r_fall [Pa/s], t_on [s], r_rise [Pa/s]); t_off is set online
         self.kernel_args = np.array([RAMP, si.a, math.inf, si.ora_fall_rate_Pa_per_s, 0.0,
                                      si.ora_rise_rate_Pa_per_s])
         self.delay = si.ora_delay_s
         self.detected_applanation = math.nan  # s, t_A1 as the instrument saw it
         self._last = None  # (t [s], apex curvature [1/m]) of the last committed state
+        self.set_nodes(phi)
 
     @property
     def switch_off(self):

@@ -1,7 +1,7 @@
 """What every instrument's air pulse offers the run (SI units): its kernel arguments, its
 pressure on the cornea's nodes and at the apex, its peak time, and its online state.
 
-The cornea kernels evaluate the pulse inside their sub-steps from ``kernel_args``
+The cornea kernels evaluate the pulse inside their sub-steps from ``kernel_args`` and ``space``
 (``kernels/air_jet.py``); the start at rest, the energy budget, the apex force budget and the
 recorder use the methods here.  A pulse that is switched off by what happens to the eye
 (``watches_applanation``) is told the apex curvature after every committed step
@@ -10,16 +10,26 @@ recorder use the methods here.  A pulse that is switched off by what happens to 
 
 from __future__ import annotations
 
-from ..kernels.air_jet import jet_pressures, pulse_pressure
+import numpy as np
+
+from ..kernels.air_jet import jet_pressures, pulse_pressure, pulse_space
 
 
 class AirPulse:
-    """The interface of an instrument's pulse; ``kernel_args`` is set by each kind."""
+    """The interface of an instrument's pulse; each kind sets ``kernel_args`` and calls
+    ``set_nodes``.  ``space``: the pulse's space factor on the cornea's nodes (the kernels'
+    ``jet_space``)."""
 
     name = ""
     kernel_args = None
+    space = None
     # True: ``observe(t, kappa)`` after every committed step
     watches_applanation = False
+
+    def set_nodes(self, phi):
+        """The space factor on the cornea's nodes of reference angles phi [rad]."""
+        self.space = np.empty(phi.shape[0])
+        pulse_space(phi, self.kernel_args, self.space)
 
     def pressures(self, t, phi, out):
         """out[k] = p_a(t, phi[k]) [Pa] at time t [s] on the nodes of reference angles phi."""

@@ -17,7 +17,7 @@ from airpuff_core.cornea.membrane import Membrane
 from airpuff_core.cornea.mindlin import MindlinShell
 from airpuff_core.cornea.reference import static_equilibrium
 from airpuff_core.cornea.tissue import NO_HISTORY, ViscoelasticTissue
-from airpuff_core.kernels.air_jet import PAPER
+from airpuff_core.loads.air_jet import AirJet
 from airpuff_core.kernels.mindlin import (SHEAR_CORRECTION, mindlin_internal_forces, mindlin_rows,
                                           mindlin_work)
 from airpuff_core.kernels.viscoelastic import relaxation_function
@@ -213,7 +213,7 @@ def test_free_vibration_conserves_energy():
     m.beta[1:-1] += 0.01 * np.sin(3 * math.pi * phi[1:-1] / phi[-1])  # and tilted directors
     VX, VY = np.zeros(n), np.zeros(n)
     zero = np.zeros(n)
-    jet = np.array([PAPER, 0.0, 21.5, 25.0, 0.03, 0.015])  # the paper's jet with pmax 0: no load
+    jet = AirJet(RunParams(pmax=0.0).si(), m.phi)  # the paper's jet with pmax 0: no load
 
     def total_energy():
         return m.kinetic_energy(VX, VY) + sum(m.energy(X, Y))

@@ -21,7 +21,7 @@ TIMES = np.linspace(0.0, 0.035, 71)
 
 def _pulse(instrument, **options):
     params = RunParams(instrument=instrument, **options)
-    return pulse_for_run(params, params.si())
+    return pulse_for_run(params, params.si(), PHI)
 
 
 def test_paper_pulse_is_eq_11():

@@ -14,7 +14,7 @@ from airpuff_core.cornea.build import build_shell, shell_on_meridian
 from airpuff_core.cornea.kirchhoff import plate_rigidity
 from airpuff_core.cornea.reference import build_membrane, static_equilibrium
 from airpuff_core.dataset import params_from_dataset, write_netcdf
-from airpuff_core.kernels.air_jet import PAPER
+from airpuff_core.loads.air_jet import AirJet
 from airpuff_core.kernels.membrane import internal_forces
 
 P0 = 16 * 133.322  # Pa
@@ -284,7 +284,7 @@ def test_free_vibration_conserves_energy():
     Y[:-1] += 2e-5 * np.cos(1.5 * math.pi * phi[:-1] / phi[-1])  # a smooth bending mode [m]
     VX, VY = np.zeros(n), np.zeros(n)
     zero = np.zeros(n)
-    jet = np.array([PAPER, 0.0, 21.5, 25.0, 0.03, 0.015])  # the paper's jet with pmax 0: no load
+    jet = AirJet(RunParams(pmax=0.0).si(), m.phi)  # the paper's jet with pmax 0: no load
 
     def total_energy():
         return 0.5 * np.sum(m.mass * (VX ** 2 + VY ** 2)) + sum(m.energy(X, Y))
