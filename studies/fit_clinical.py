@@ -780,9 +780,11 @@ def summary_of(mode, args, argv, base, ccts, reference_cct, calibration_iops, re
     title = ("DEVELOPMENT fit (not a clinical fit): " if development else "Clinical fit: ") + \
         f"G_t to the CCT slope, g to CH ({args.instrument}, " \
         f"{'raw' if args.raw else 'calibrated'} readings)"
-    note = ("Development mode: the paper's jet and/or raw readings stand in for the ORA pulse "
-            "and the Goldmann-calibrated readings (issue 26). These numbers exercise the fit; "
-            "they are not fitted tissue values and make no clinical claim."
+    why = [w for w, on in (("not the ORA's pulse", args.instrument != "ora"),
+                           ("raw readings", args.raw),
+                           ("coarse resolution", args.resolution == "coarse")) if on]
+    note = (f"Development mode ({', '.join(why)}): these numbers exercise the fit; they are "
+            f"not fitted tissue values and make no clinical claim."
             if development else "The ORA pulse and the calibrated readings (the calibration made "
             "again at every trial). The numbers are the model version's: valid as a clinical fit "
             "only with settled numerics (docs/validation.md, the sound speed).")
