@@ -333,6 +333,25 @@ def _json_error_position(exc: RequestValidationError) -> list[dict] | None:
 
 # -- the app --------------------------------------------------------------------------------------
 
+def _document_body_limit(app: FastAPI, limit: int) -> None:
+    """Add the 413 that ``RequestGuard`` answers for a body above ``limit`` bytes to every
+    operation of the OpenAPI schema that takes a body (the guard is a middleware, which FastAPI
+    cannot see)."""
+    generate = app.openapi
+
+    def openapi():
+        if app.openapi_schema is None:
+            schema = generate()
+            for operations in schema.get("paths", {}).values():
+                for operation in operations.values():
+                    if "requestBody" in operation:
+                        operation.setdefault("responses", {}).setdefault(
+                            "413", {"description": f"the request body is above {limit} bytes"})
+        return app.openapi_schema
+
+    app.openapi = openapi
+
+
 def create_app(settings: Settings) -> FastAPI:
     """The API for ``settings.data_dir``.  With ``settings.run_jobs`` its lifespan also starts and
     stops the job runner (a thread owning the Dask client)."""
@@ -377,6 +396,7 @@ def create_app(settings: Settings) -> FastAPI:
         lifespan=lifespan, openapi_url=None, docs_url=None, redoc_url=None)
     app.state.settings = settings
     app.state.runner = None
+    _document_body_limit(app, settings.max_body_bytes)
     app.add_middleware(RequestGuard, limit=settings.max_body_bytes, token=settings.token,
                        hosts=HostAllowList(settings.bind_address, settings.allowed_hosts),
                        bodies={"/sweeps": SweepRequest, "/identify": schemas.IdentifyRequest,

@@ -274,6 +274,18 @@ def test_busy_port_is_reported(tmp_path, server):
     assert p.returncode == 1 and "cannot listen" in p.stderr, p.stderr
 
 
+def test_body_limit_is_documented_and_answered(server):
+    with server.client() as c:
+        schema = c.get("/openapi.json").json()
+        bodies = [(path, method) for path, ops in schema["paths"].items()
+                  for method, op in ops.items() if "requestBody" in op]
+        assert ("/sweeps", "post") in bodies and len(bodies) >= 4
+        for path, method in bodies:
+            assert "413" in schema["paths"][path][method]["responses"], (path, method)
+        r = c.post("/sweeps", content=b" " * 1_000_001, headers={"content-type": "application/json"})
+        assert r.status_code == 413, r.text
+
+
 @pytest.mark.slow
 def test_schemathesis_finds_no_server_error(server, tmp_path):
     """Property-based run over the whole OpenAPI schema (bounded in time)."""
@@ -283,6 +295,10 @@ def test_schemathesis_finds_no_server_error(server, tmp_path):
                        "response_schema_conformance,negative_data_rejection",
            "--max-time", "30", "--workers", "1", "--request-timeout", "20",
            "--suppress-health-check", "all", "--max-failures", "5"]
+    # A body above the service's size limit is refused with 413 (documented per operation): a rejection
+    (tmp_path / "schemathesis.toml").write_text(
+        "[checks.negative_data_rejection]\n"
+        'expected-statuses = ["400", "401", "403", "404", "406", "413", "415", "422", "428"]\n')
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=240, cwd=tmp_path)
     out = p.stdout + p.stderr
     assert p.returncode == 0, out[-6000:]
