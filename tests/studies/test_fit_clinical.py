@@ -83,11 +83,8 @@ def test_sensitivities_of_a_plane_are_its_coefficients():
 
 # -- the command ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("argv, word", [
-    pytest.param([], "instrument: ora", marks=pytest.mark.skipif(
-        "ora" in fc.instruments(), reason="this solver has the ORA pulse")),
     (["--instrument", "paper", "--raw"], "--development"),        # development not asked for
-    pytest.param(["--instrument", "ora", "--resolution", "coarse"], "--resolution coarse",
-                 marks=pytest.mark.skipif("ora" not in fc.instruments(), reason="no ORA pulse")),
+    (["--instrument", "ora", "--resolution", "coarse"], "--resolution coarse"),
     (["--instrument", "paper", "--raw", "--development", "--set", "ve_g=0.5"], "--set ve_g"),
     (["--instrument", "paper", "--raw", "--development", "--cct", "0.5"], "--cct"),
     (["--instrument", "paper", "--raw", "--development", "--set", "IOP=99"], "IOP"),
