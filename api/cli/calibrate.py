@@ -40,9 +40,6 @@ def add_calibrate_parser(sub) -> None:
                            "fit the map of the raw applanation pressures to the Goldmann-"
                            "equivalent scale, and write it keyed by instrument, model version "
                            "and resolution."))
-    if "instrument" not in CHOICES:  # otherwise a run option like the others
-        p.add_argument("--instrument", dest="instrument", default="paper", metavar="paper",
-                       help="the instrument's pulse (this installation has only the paper's jet)")
     p.add_argument("--IOP", dest="IOP", default="10:30:9", metavar="LIST",
                    help="the true IOPs of the reference sweep [mmHg], a comma list or "
                         "start:stop:num (default 10:30:9)")
