@@ -47,9 +47,10 @@ labelled development mode whose numbers are not a clinical fit.
     python -m studies.fit_clinical --out fit_dev --instrument paper --raw --development --resolution coarse
 
 Every run is a point of the sweep's storage (``<out>/points/<key>.nc``, the key the hash of its
-parameters and the model version), so a rerun reuses what is stored; ``--workers N`` computes the
-points of one evaluation on a local Dask cluster of N worker processes through the sweep engine
-(``sweep.engine.PointEngine``), ``--workers 0`` (default) in this process.  Every run and every
+parameters and the model version; ``--points`` another folder, shared between fits), so a rerun
+reuses what is stored; ``--workers N`` computes the points of one evaluation on a local Dask
+cluster of N worker processes through the sweep engine (``sweep.engine.PointEngine``),
+``--workers 0`` (default) in this process.  Every run and every
 evaluation of a response is recorded (``<out>/evaluations.jsonl`` as it goes; ``fit.json``,
 ``fit.nc`` and ``fit.md`` at the end).
 """
@@ -63,6 +64,7 @@ import shlex
 import sys
 import time
 from collections import OrderedDict
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -298,6 +300,25 @@ class PointRunner:
                     records[key] = record
                     self.log(record, todo[key])
         return [records[key] for key in keys]
+
+
+@contextmanager
+def point_runner(points_dir: Path, workers: int, warm: RunParams, log: Callable | None = None):
+    """A :class:`PointRunner` on ``points_dir``: in this process (``workers`` 0) or on a local
+    Dask cluster of ``workers`` processes (their Numba cache warmed on ``warm`` first), closed
+    when the block ends."""
+    if workers <= 0:
+        yield PointRunner(points_dir, None, log)
+        return
+    from sweep.cluster import close_client, make_client
+    from sweep.numba_cache import warm_numba_cache
+
+    warm_numba_cache(warm)
+    client = make_client(workers=workers)
+    try:
+        yield PointRunner(points_dir, client, log)
+    finally:
+        close_client(client)
 
 
 @dataclass
@@ -666,6 +687,9 @@ def parse_args(argv):
                     help="starting values (default the published 9.48 kPa, 0.3)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="any other run parameter of the reference eye (e.g. E0=0.6, IOP=18)")
+    ap.add_argument("--points", type=Path, default=None,
+                    help="folder of the runs' storage (default <out>/points); fits that share "
+                         "one reuse their common runs (studies/fit_sensitivity.py)")
     ap.add_argument("--workers", default="0",
                     help="Dask worker processes for the runs (0: in this process)")
     ap.add_argument("--max-evaluations", default="8", help="evaluations per 1-D solve")
@@ -745,16 +769,9 @@ def main(argv=None) -> int:
         runs.append(entry)
         log(entry)
 
-    client = None
-    if workers > 0:
-        from sweep.cluster import close_client, make_client
-        from sweep.numba_cache import warm_numba_cache
-
-        warm_numba_cache(RunParams.from_dict({**base, "thickness": reference_cct}))
-        client = make_client(workers=workers)
     t0 = time.perf_counter()
-    try:
-        runner = PointRunner(out / "points", client, log_run)
+    with point_runner(args.points or out / "points", workers,
+                      RunParams.from_dict({**base, "thickness": reference_cct}), log_run) as runner:
         responses = Responses(runner, base, ccts, reference_cct, calibration_iops, log=log)
         try:
             result = fit(responses, slope_target, ch_target, start,
@@ -762,9 +779,6 @@ def main(argv=None) -> int:
             error = None
         except FitError as err:
             result, error = None, str(err)
-    finally:
-        if client is not None:
-            close_client(client)
     summary = summary_of(mode, args, argv, base, ccts, reference_cct, calibration_iops,
                          responses.readings, slope_target, ch_target, result, error, runs,
                          responses.evaluations, time.perf_counter() - t0)
