@@ -57,7 +57,6 @@ evaluation of a response is recorded (``<out>/evaluations.jsonl`` as it goes; ``
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import shlex
@@ -72,7 +71,7 @@ from typing import Callable
 import numpy as np
 
 from airpuff_core.atomic import atomic_write
-from airpuff_core.params import CHOICES, PARAMETERS, ParameterError, RunParams, parse_decimal
+from airpuff_core.params import CHOICES, ParameterError, RunParams, parse_decimal
 from airpuff_core.provenance import model_version
 from sweep.engine import PointEngine, stored_record
 from sweep.record import PointRecord

@@ -101,10 +101,11 @@ def test_bad_input_is_one_line_and_runs_nothing(tmp_path, capsys, argv, word):
 
 
 @pytest.mark.slow
-def test_a_coarse_run_on_a_small_grid_every_number_from_the_stored_runs(tmp_path):
+def test_a_coarse_run_on_a_small_grid_every_number_from_the_stored_runs(tmp_path, monkeypatch):
     out = tmp_path / "pred"
-    assert pc.main(["--out", str(out), "--cct", "0.5,0.54", "--iop", "16,20", "--e0", "0.5,0.7",
-                    "--corvis-iop", "16,20"]) == 0
+    argv = ["--out", str(out), "--cct", "0.5,0.54", "--iop", "16,20", "--e0", "0.5,0.7",
+            "--corvis-iop", "16,20"]
+    assert pc.main(argv) == 0
     summary = json.loads((out / "predictions.json").read_text())
     assert [r["row"] for r in summary["rows"]] == [r.name for r in pc.ROWS]
     table = (out / "predictions.md").read_text()
@@ -132,3 +133,19 @@ def test_a_coarse_run_on_a_small_grid_every_number_from_the_stored_runs(tmp_path
                     * pc.AGAINST[row.against][2])
         assert r["model"] == pytest.approx(expected, rel=1e-9), r["row"]
         assert r["agrees"] == pc.agreement(r["model"], row.clinic)
+
+    # without a calibration file the calibrated rows are NaN with the reason and the command
+    # that makes one; the raw rows are unchanged (the runs are read back, not computed again)
+    empty = tmp_path / "no_calibrations"
+    empty.mkdir()
+    monkeypatch.setenv("AIRPUFF_CALIBRATION_DIR", str(empty))
+    assert pc.main(argv) == 0
+    again = json.loads((out / "predictions.json").read_text())
+    assert again["runs_computed"] == 0
+    for before, after, row in zip(summary["rows"], again["rows"], pc.ROWS):
+        if row.calibrated:
+            assert after["model"] is None and after["agrees"] == "no model value"
+            assert "no calibration" in after["note"] and "airpuff calibrate" in after["note"]
+        else:
+            assert after["model"] == before["model"]
+    assert again["calibration"]["ora"].startswith("none: no calibration")
