@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .divergence_damping import DivergenceDamping
 from .fluid import KAPPA, NeighbourTable, Operators
 from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_divergence, drift,
                             impose_cornea, interface_pressure_change, max_speed, tait_pressure,
@@ -78,6 +79,8 @@ class FluidStepper:
         self.hv_consistent_density = hyperviscosity_operator == "consistent"
         self.hv_consistent_velocity = hyperviscosity_operator in ("consistent",
                                                                   "consistent_velocity")
+        # the speed in the velocity's hyperviscosity in place of c (0: c itself)
+        self.hv_velocity_speed = si.hyperviscosity_speed
         # strain_limit > 0: one operator, built at the reference positions and mapped by the
         # deformation since (total Lagrangian form), rebuilt at the state once the largest
         # strain max |F - I| exceeds strain_limit; 0: every operator built at its positions
@@ -109,6 +112,11 @@ class FluidStepper:
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self.last_hv_substeps = 0
+        # the velocity's divergence damped (docs/model.md section 4, issue 25)
+        self.divergence_damping = (
+            DivergenceDamping(si.hyperviscosity_divergence, ch.h, self.pinned_vx, self.pinned_vy)
+            if si.hyperviscosity_divergence > 0 else None)
+        self._div_increments = (np.empty(n), np.empty(n))
 
     # -- derivatives ------------------------------------------------------------------------
     def velocity_derivatives(self, ops, x, y, vx, vy, dv, div, nodes=None, laplacian=False,
@@ -170,6 +178,7 @@ class FluidStepper:
             w["hv_rho"][:] = 0.0
             w["hv_vx"][:] = 0.0
             w["hv_vy"][:] = 0.0
+            self._divergence_damping_rates(dt, c)
             return
         scale = gamma * c * self.hv_scale_unit
         supersteps, stages = legendre_plan(dt / dt_hyperviscous)
@@ -177,11 +186,33 @@ class FluidStepper:
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
                                      *self.ops_n.hyperviscosity_args(),
                                      self.hv_consistent_density, self.hv_consistent_velocity,
-                                     scale, dt, stages, supersteps, chunks(self.x.shape[0]),
+                                     scale, self.velocity_hyperviscosity_factor(c), dt, stages,
+                                     supersteps, chunks(self.x.shape[0]),
                                      *self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])
         w["hv_rho"] /= dt
         w["hv_vx"] /= dt
         w["hv_vy"] /= dt
+        self._divergence_damping_rates(dt, c)
+
+    def _divergence_damping_rates(self, dt, c):
+        """The divergence damping's change of the velocity over dt, as rates [m/s^2], added to
+        the hyperviscosity's (``divergence_damping.py``); its divergence operator is assembled
+        at each build of the operator at t^n."""
+        damping = self.divergence_damping
+        if damping is None:
+            return
+        if damping.built_for != self.operator_builds:
+            damping.assemble(self.ops_n, self.x, self.ops_n.adjoint_weight)
+            damping.built_for = self.operator_builds
+        dx, dy = self._div_increments
+        damping.increments(self.vx, self.vy, c, dt, dx, dy)
+        self.work["hv_vx"] += dx / dt
+        self.work["hv_vy"] += dy / dt
+
+    def velocity_hyperviscosity_factor(self, c):
+        """The velocity's hyperviscosity strength relative to the density's at sound speed c
+        [m/s]: c_v / c with the option's speed c_v (``hyperviscosity_speed``), 1 without it."""
+        return self.hv_velocity_speed / c if self.hv_velocity_speed > 0 and c > 0 else 1.0
 
     def impose_cornea(self, X, Y, VX, VY):
         """The cornea's positions [m] and velocities [m/s] on the interface nodes of the trial

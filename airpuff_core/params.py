@@ -191,6 +191,12 @@ PARAMETERS: dict[str, ParamSpec] = {
            "0.05-0.075 (jet runs), consistent 0.094-0.103 / 0.0625-0.075 (docs/model.md "
            "section 4)",
            low_inc=True),
+        _p("hyperviscosity_speed", "m/s", 0.0, 0.0, 1500.0,
+           "speed c_v in the strength gamma c_v h^5 of the hyperviscosity on the velocity, in "
+           "place of the sound speed c (0: c; docs/model.md section 4)", low_inc=True),
+        _p("hyperviscosity_divergence", "1", 0.0, 0.0, 10.0,
+           "strength gamma_div of the damping of the velocity's divergence, a bulk viscosity "
+           "gamma_div c h (0 switches it off; docs/model.md section 4)", low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories",
            si=("output_interval_s", 1e-3)),
         _p("cfl", "1", 0.6, 0.0, 0.6,

@@ -57,12 +57,14 @@ class StepControl:
         self.h_min = fluid.h_min
         self.v_prev = 0.0  # largest fluid speed of the last step [m/s]
         self.v_running = 0.0  # largest fluid speed so far [m/s]
-        # the hyperviscosity's stability limit is its stiffer operator's, each with its own
-        # warm-started stiffest mode
+        # the hyperviscosity's stability limit is its stiffer operator's (on the velocity
+        # times its strength relative to the density's), each with its own warm-started
+        # stiffest mode
         self._hv_kinds = sorted({fluid.hv_consistent_density, fluid.hv_consistent_velocity})
         self.hv_modes = {}
-        self.hv_radius_unit = max(self._hv_spectral_radius(k, None, HV_START_ITERATIONS)
-                                  for k in self._hv_kinds)
+        self.hv_radii = {k: self._hv_spectral_radius(k, None, HV_START_ITERATIONS)
+                         for k in self._hv_kinds}
+        self.hv_radius_unit = self._hv_radius(self.c0)
         self.hv_radius_max = self.hv_radius_unit
         self._hv_age = 0
         self._hv_builds = fluid.operator_builds  # the HV operator's build of the estimate
@@ -118,11 +120,22 @@ class StepControl:
         if due and fluid.operator_builds != self._hv_builds:
             self._hv_age = 0
             self._hv_builds = fluid.operator_builds
-            self.hv_radius_unit = max(
-                self._hv_spectral_radius(k, self.hv_modes[k], HV_POWER_ITERATIONS)
-                for k in self._hv_kinds)
-            self.hv_radius_max = max(self.hv_radius_max, self.hv_radius_unit)
+            self.hv_radii = {k: self._hv_spectral_radius(k, self.hv_modes[k],
+                                                         HV_POWER_ITERATIONS)
+                             for k in self._hv_kinds}
+        self.hv_radius_unit = self._hv_radius(self.c)
+        self.hv_radius_max = max(self.hv_radius_max, self.hv_radius_unit)
         return HV_SAFETY / (gamma * self.c * self.hv_radius_unit * HV_MARGIN)
+
+    def _hv_radius(self, c):
+        """Spectral radius of the hyperviscosity per unit gamma c [1/s per m/s] at sound speed c
+        [m/s]: the larger of the density's and the velocity's operator, the latter times its
+        relative strength (``FluidStepper.velocity_hyperviscosity_factor``)."""
+        fluid = self.fluid
+        factor = fluid.velocity_hyperviscosity_factor(c)
+        density = self.hv_radii[fluid.hv_consistent_density]
+        velocity = self.hv_radii[fluid.hv_consistent_velocity]
+        return max(density, velocity * factor) if factor > 0 else density
 
     def _hv_spectral_radius(self, consistent, start, iterations):
         """Spectral radius of h^5 H (H = K^* L K if ``consistent``, else L^3) [1/s per c], by

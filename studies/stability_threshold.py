@@ -28,13 +28,14 @@ from airpuff_core.stability import linearised_step
 NOISE = 1.0  # 1/s
 
 
-def check(resolution: str, gamma: float, log=print, operator: str = "brookshaw"
-          ) -> tuple[float, int]:
+def check(resolution: str, gamma: float, log=print, operator: str = "brookshaw",
+          extra=None) -> tuple[float, int]:
     """(largest growth rate [1/s], number of growing modes) at strength ``gamma`` of the
-    hyperviscosity ``operator``."""
+    hyperviscosity ``operator``; ``extra``: other run parameters (name -> value)."""
     t0 = time.perf_counter()
-    report = linearised_step(RunParams(resolution=resolution, hyperviscosity=gamma,
-                                       hyperviscosity_operator=operator))
+    report = linearised_step(RunParams.from_dict({
+        "resolution": resolution, "hyperviscosity": gamma, "hyperviscosity_operator": operator,
+        **(extra or {})}))
     rates = report.growth_rates
     growing = int(np.count_nonzero(rates > NOISE))
     log(f"  gamma {gamma:.4g}: largest growth rate {rates[0]:.4g} /s, {growing} growing modes "
@@ -44,11 +45,11 @@ def check(resolution: str, gamma: float, log=print, operator: str = "brookshaw"
 
 
 def smallest_stable(resolution: str, low: float, high: float, steps: int, log=print,
-                    operator: str = "brookshaw") -> tuple:
+                    operator: str = "brookshaw", extra=None) -> tuple:
     """Bisection between an unstable ``low`` and a stable ``high`` strength."""
     for _ in range(steps):
         mid = 0.5 * (low + high)
-        if check(resolution, mid, log, operator)[1] == 0:
+        if check(resolution, mid, log, operator, extra)[1] == 0:
             high = mid
         else:
             low = mid
@@ -63,11 +64,14 @@ def main(argv=None):
     ap.add_argument("--operator", default=CHOICE_DEFAULTS["hyperviscosity_operator"],
                     choices=CHOICES["hyperviscosity_operator"],
                     help="hyperviscosity operator (docs/model.md section 4)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="any other run parameter (e.g. hyperviscosity_speed=10)")
     ap.add_argument("--bisect-steps", type=int, default=4)
     ap.add_argument("--no-bisect", action="store_true")
     args = ap.parse_args(argv)
-    print(f"resolution {args.resolution}, operator {args.operator}", flush=True)
-    results = {g: check(args.resolution, g, operator=args.operator)
+    extra = dict(s.split("=", 1) for s in args.set)
+    print(f"resolution {args.resolution}, operator {args.operator}, {extra}", flush=True)
+    results = {g: check(args.resolution, g, operator=args.operator, extra=extra)
                for g in map(float, args.gammas.split(","))}
     if args.no_bisect:
         return
@@ -77,7 +81,7 @@ def main(argv=None):
         print("bisection needs a stable strength above an unstable one")
         return
     low, high = smallest_stable(args.resolution, unstable[-1], stable[0], args.bisect_steps,
-                                operator=args.operator)
+                                operator=args.operator, extra=extra)
     print(f"smallest stable strength at {args.resolution} resolution: between {low:.4g} (unstable) "
           f"and {high:.4g} (stable)")
 

@@ -55,8 +55,8 @@ def increments_work(n):
 @njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
 def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, sign, count,
                                  lap_b, lap_c, area, consistent_density, consistent_velocity,
-                                 scale, dt, stages, supersteps, n_chunks, work, operator_work,
-                                 out_rho, out_vx, out_vy):
+                                 scale, velocity_factor, dt, stages, supersteps, n_chunks, work,
+                                 operator_work, out_rho, out_vx, out_vy):
     """Change of rho, v_x and v_y over dt [s] under d f/dt = scale H f by ``supersteps`` RKL1
     super-steps of dt / supersteps with ``stages`` stages each (module docstring):
     out_f = Y - f.  H and its arguments (start ... consistent_velocity) as
@@ -89,9 +89,10 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
         tau = w1 * tau_step
         for i in range(n):
             s = scale[i]
+            sv = s * velocity_factor
             prev_r[i] = base_r[i] + tau * (h_r[i] * s)
-            prev_x[i] = vx[i] if pinned_vx[i] else base_x[i] + tau * (h_x[i] * s)
-            prev_y[i] = vy[i] if pinned_vy[i] else base_y[i] + tau * (h_y[i] * s)
+            prev_x[i] = vx[i] if pinned_vx[i] else base_x[i] + tau * (h_x[i] * sv)
+            prev_y[i] = vy[i] if pinned_vy[i] else base_y[i] + tau * (h_y[i] * sv)
             old_r[i] = base_r[i]
             old_x[i] = base_x[i]
             old_y[i] = base_y[i]
@@ -105,11 +106,12 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
                                        h_y)
             for i in range(n):
                 s = scale[i]
+                sv = s * velocity_factor
                 old_r[i] = mu * prev_r[i] + nu * old_r[i] + tau * (h_r[i] * s)
                 old_x[i] = (vx[i] if pinned_vx[i]
-                            else mu * prev_x[i] + nu * old_x[i] + tau * (h_x[i] * s))
+                            else mu * prev_x[i] + nu * old_x[i] + tau * (h_x[i] * sv))
                 old_y[i] = (vy[i] if pinned_vy[i]
-                            else mu * prev_y[i] + nu * old_y[i] + tau * (h_y[i] * s))
+                            else mu * prev_y[i] + nu * old_y[i] + tau * (h_y[i] * sv))
             prev_r, old_r = old_r, prev_r
             prev_x, old_x = old_x, prev_x
             prev_y, old_y = old_y, prev_y

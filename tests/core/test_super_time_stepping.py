@@ -42,7 +42,7 @@ def _scaled_operator_matrix(model, slot):
 def _increments(model, fields, pinned_vx, pinned_vy, scale, dt, stages, supersteps=1):
     n = model.x.size
     out = np.empty((3, n))
-    hyperviscous_flow_increments(*fields, pinned_vx, pinned_vy, *_operator_args(model), scale,
+    hyperviscous_flow_increments(*fields, pinned_vx, pinned_vy, *_operator_args(model), scale, 1.0,
                                  dt, stages, supersteps, 1, *increments_work(n), *out)
     return out
 
