@@ -82,7 +82,7 @@ def _done_job(con, job_id: str):
 
 
 def _table(con, row, names) -> SweepTable:
-    return SweepTable.from_records(json.loads(row["spec_json"]), point_records(con, row["id"]),
+    return SweepTable.from_records(json.loads(row["spec_json"]), point_records(con, row),
                                    names)
 
 

@@ -3,7 +3,9 @@
 Tables
 - ``jobs``: one row per submitted sweep (statuses and their transitions: ``api.status``).
 - ``points``: one row per point key (a hash of all parameters of one run), shared by all jobs, so an
-  identical point is computed once; its netCDF lives in ``DATA_DIR/points/``.
+  identical point is computed once; its netCDF lives in ``DATA_DIR/points/``.  ``model_version``
+  is the model version that computed it (the calibration that applies depends on it; NULL in
+  rows stored before schema version 5).
 - ``job_points``: the grid of a job: (job, index) -> point key, swept values and the point's status
   within that job.
 
@@ -24,7 +26,7 @@ from typing import Any, Iterable, Iterator
 
 from .status import ENDED_JOB_STATUSES, JOB_STATUSES, POINT_RESULTS, POINT_STATUSES, sql_list
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 BUSY_TIMEOUT_MS = 30_000
 
 # Columns of ``points`` up to schema version 2 that nothing read (a point's parameters and wall
@@ -38,7 +40,8 @@ CREATE TABLE IF NOT EXISTS points (
     status       TEXT NOT NULL CHECK (status IN ({sql_list(("pending",) + POINT_RESULTS)})),
     message      TEXT,
     metrics_json TEXT,
-    submissions  INTEGER NOT NULL DEFAULT 0
+    submissions  INTEGER NOT NULL DEFAULT 0,
+    model_version TEXT
 )"""
 
 SCHEMA = f"""
@@ -167,6 +170,8 @@ def init(path: str | Path) -> None:
                 con.execute("ALTER TABLE jobs ADD COLUMN owner TEXT")
             if set(DROPPED_POINT_COLUMNS) & _columns(con, "points"):  # schema version 1 or 2
                 _rebuild_points_table(con)
+            if "model_version" not in _columns(con, "points"):  # schema version 4 or older
+                con.execute("ALTER TABLE points ADD COLUMN model_version TEXT")
             con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
     except sqlite3.OperationalError:  # busy, locked, a full disk: not the file's fault
         raise
@@ -307,7 +312,8 @@ def delete_job(con, job_id: str) -> bool:
 def job_points(con, job_id: str) -> list[sqlite3.Row]:
     return con.execute(
         "SELECT jp.idx, jp.key, jp.E0, jp.IOP, jp.thickness, jp.pmax, jp.status, jp.message, "
-        "jp.reused, pt.metrics_json FROM job_points jp LEFT JOIN points pt ON pt.key = jp.key "
+        "jp.reused, pt.metrics_json, pt.model_version FROM job_points jp "
+        "LEFT JOIN points pt ON pt.key = jp.key "
         "WHERE jp.job_id = ? ORDER BY jp.idx", (job_id,)).fetchall()
 
 
@@ -418,8 +424,10 @@ def record_point_results(con, results: Iterable[tuple[str, str | None, Any]]) ->
         for key, job_id, rec in results:
             computed = bool(rec.computed)
             con.execute(
-                "UPDATE points SET status = ?, message = ?, metrics_json = ? WHERE key = ?",
-                (rec.status, rec.message or None, json.dumps(rec.metrics or {}), key))
+                "UPDATE points SET status = ?, message = ?, metrics_json = ?, model_version = ? "
+                "WHERE key = ?",
+                (rec.status, rec.message or None, json.dumps(rec.metrics or {}),
+                 rec.model_version, key))
             con.execute(
                 "UPDATE job_points SET status = ?, message = ?, "
                 "reused = CASE WHEN job_id = ? AND ? THEN 0 ELSE 1 END "

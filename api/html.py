@@ -28,7 +28,7 @@ td.num{text-align:right;font-variant-numeric:tabular-nums}
 overflow:hidden;vertical-align:middle;margin-right:.5em}
 .bar span{display:block;height:100%;float:left}.bar .ok{background:#2da44e}
 .bar .failed{background:#cf222e}
-.muted{color:#656d76}.error{color:#cf222e}
+.muted{color:#656d76}.error{color:#cf222e}.cal{color:#0550ae}
 .figures{display:flex;flex-wrap:wrap;gap:.6em}.figures img{border:1px solid #d0d7de;max-width:100%}
 form.sweep label{display:block;font-weight:600;margin-top:.7em}
 form.sweep input[type=text],form.sweep input[type=password],form.sweep select{width:22em;

@@ -10,6 +10,7 @@ work.  Every SQL statement is ``api.db``'s.
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import sqlite3
 import uuid
@@ -18,7 +19,10 @@ from typing import Any, Iterator
 from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 
+from airpuff_core.calibration import (Calibration, apply_coefficients, find_calibration,
+                                      load_calibrations, nan_readings)
 from airpuff_core.params import SWEPT, ParameterError
+from airpuff_core.provenance import model_version
 from airpuff_core.result import METRICS
 from sweep.grid import GRID_FIELD, SweepSpec, check_grid_size
 from sweep.storage import point_key
@@ -111,23 +115,87 @@ def job_info(row: sqlite3.Row) -> dict[str, Any]:
     }
 
 
-def point_records(con: sqlite3.Connection, job_id: str) -> list[dict[str, Any]]:
-    """The points of a job as ``GET /sweeps/{id}/metrics`` reports them (``schemas.PointRecord``):
-    index, key, the four swept values, status, message, reused and every metric (None where
-    missing).  The pages show the same records; ``POST /identify`` interpolates in them."""
+def point_records(con: sqlite3.Connection, job: sqlite3.Row) -> list[dict[str, Any]]:
+    """The points of the job row ``job`` as ``GET /sweeps/{id}/metrics`` reports them
+    (``schemas.PointRecord``): index, key, the four swept values, status, message, reused, every
+    raw metric (None where missing), the model version that computed the point, and the
+    calibrated readings beside the raw ones (``calibrated_readings``).  The pages show the same
+    records; ``POST /identify`` interpolates in them."""
+    spec = SweepSpec.from_dict(json.loads(job["spec_json"]), validate=False)
     points = []
-    for p in db.job_points(con, job_id):
+    for p in db.job_points(con, job["id"]):
         rec: dict[str, Any] = {"index": p["idx"], "key": p["key"]}
         for name in SWEPT:
             rec[name] = p[name]
         rec["status"] = p["status"]
         rec["message"] = p["message"]
         rec["reused"] = bool(p["reused"])
-        m = db.loads(p["metrics_json"]) if p["status"] == "ok" else None
+        ok = p["status"] == "ok"
+        m = db.loads(p["metrics_json"]) if ok else None
         for name in METRICS:
             rec[name] = (m or {}).get(name)
+        rec["model_version"] = (p["model_version"] or _version_from_key(spec, p["idx"], p["key"])
+                                if ok else None)
         points.append(rec)
+    calibrated_readings(spec, points)
     return points
+
+
+def _version_from_key(spec: SweepSpec, index: int, key: str) -> str | None:
+    """The model version of a point whose row does not record it (stored before schema version
+    5): this server's if the point's key is the one this version gives its parameters (the key
+    hashes the parameters and the model version, ``sweep.storage.point_key``), else unknown."""
+    try:
+        return model_version() if point_key(spec.point(index)) == key else None
+    except ParameterError:  # a stored job's parameters this version no longer takes
+        return None
+
+
+def calibrated_readings(spec: SweepSpec, records: list[dict[str, Any]]) -> None:
+    """Add to each point record the calibrated readings ``<name>_cal`` of
+    ``airpuff_core.calibration.CALIBRATED`` (None where missing), ``calibration`` (the
+    calibration applied, or None) and ``calibration_missing`` (why none applies to an ok point:
+    the core's reason, naming the ``airpuff calibrate`` command that makes one; else None).
+
+    As in the combined netCDF (``sweep.combine``), they are computed now from the raw P1 and P2
+    with this installation's calibrations, for the model version that computed the point; the
+    points of a job share every option but the eye's (one calibration) and pmax (the pulse: one
+    calibration each), so one look-up per (pmax, model version)."""
+    calibrations = load_calibrations()
+    found: dict[tuple[float, str | None], tuple[Calibration | None, str]] = {}
+    for rec in records:
+        cal, reason = None, ""
+        values = nan_readings()
+        if rec["status"] == "ok":
+            version = rec["model_version"]
+            group = (rec["pmax"], version)
+            if group not in found:
+                found[group] = _look_up(spec, rec["index"], version, calibrations)
+            cal, reason = found[group]
+            if cal is not None:
+                values = apply_coefficients(cal.coefficients(), _nan(rec["P1"]), _nan(rec["P2"]))
+        for name, value in values.items():
+            rec[name] = value if math.isfinite(value) else None
+        rec["calibration"] = cal.label if cal is not None else None
+        rec["calibration_missing"] = reason or None
+
+
+def _look_up(spec: SweepSpec, index: int, version: str | None,
+             calibrations: list[Calibration]) -> tuple[Calibration | None, str]:
+    """``find_calibration`` for the point at ``index`` computed by model version ``version``."""
+    if not version:
+        return None, ("the job database does not record the model version that computed this "
+                      f"point, which is not this server's ({model_version()}): no calibration is "
+                      "applied (the job's netCDF dataset names the point's model version)")
+    try:
+        params = spec.point(index).to_dict()
+    except ParameterError as err:
+        return None, f"this server cannot read the point's parameters: {err}"
+    return find_calibration(params, version, calibrations)
+
+
+def _nan(value: float | None) -> float:
+    return math.nan if value is None else value
 
 
 def cancel_or_remove(con: sqlite3.Connection, settings: Settings, row: sqlite3.Row) -> bool:

@@ -1,7 +1,8 @@
 """The results pages: server-rendered HTML on the same app as the JSON API.
 
     GET  /                              the jobs, newest first, with their progress
-    GET  /jobs/{id}[?point=N]           a job: request, progress, figures, metrics, failures
+    GET  /jobs/{id}[?point=N]           a job: request, progress, figures, the readings raw and
+                                        calibrated, metrics, failures
     GET  /jobs/{id}/figures/{name}.png  a figure drawn by the server (api.figures)
     GET  /new, POST /new                the sweep form (validated by the POST /sweeps schema)
     GET  /login, POST /login, POST /logout   the token, when AIRPUFF_API_TOKEN is set
@@ -25,8 +26,9 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
+from airpuff_core.calibration import CALIBRATED
 from airpuff_core.params import CHOICES, INT_PARAMETERS, PARAMETERS, SWEPT
-from airpuff_core.result import METRICS
+from airpuff_core.result import METRICS, RAW_READINGS
 
 from . import auth, corrections, db, figures, jobs, sweep_form
 from .html import badge, esc, number, page, progress, table, watch_state, when
@@ -167,7 +169,7 @@ def router(settings: Settings, SweepRequest, describe: Callable[[dict], dict]  #
         row = db.get_job(con, job_id)
         if row is None:
             return None
-        return jobs.job_info(row), jobs.point_records(con, job_id)
+        return jobs.job_info(row), jobs.point_records(con, row)
 
     @r.get("/jobs/{job_id}", response_class=HTMLResponse)
     def job_page(job_id: str, point: int | None = None,
@@ -319,22 +321,80 @@ def _figures(job: dict[str, Any], records: list[dict[str, Any]], point: int | No
             f'<div class="figures">{imgs}</div>{history}')
 
 
+def metric_columns() -> list[str]:
+    """The metrics table's columns: every raw metric, each calibrated reading (``<name>_cal``)
+    right after its raw one, and those without a raw column of their name (``IOPnc_cal``, from
+    P1) after the last calibrated one."""
+    columns = []
+    for name in METRICS:
+        columns.append(name)
+        if f"{name}_cal" in CALIBRATED:
+            columns.append(f"{name}_cal")
+    last = max(i for i, name in enumerate(columns) if name in CALIBRATED)
+    rest = [name for name in CALIBRATED if name not in columns]
+    return columns[:last + 1] + rest + columns[last + 1:]
+
+
+def _metric_header(name: str) -> str:
+    if name in CALIBRATED:
+        unit, long = CALIBRATED[name]
+        return (f'<span class="cal" title="Goldmann-equivalent: {esc(long)}">{esc(name)} '
+                f"[{esc(unit)}]</span>")
+    unit, long = METRICS[name]
+    return f'<span title="{esc(long)}">{esc(name)} [{esc(unit)}]</span>'
+
+
+def _reason_html(reason: str) -> str:
+    """A reason of ``airpuff_core.calibration.find_calibration``, its command as code."""
+    before, sep, command = reason.partition("make one with: ")
+    return esc(before) + (f"make one with: <code>{esc(command)}</code>" if sep else "")
+
+
+def _calibration_section(records: list[dict[str, Any]]) -> str:
+    """What the ``_cal`` columns are, the calibration applied and why a point has none."""
+    ok = [r for r in records if r["status"] == "ok"]
+    raw = ", ".join(n for n in RAW_READINGS)
+    intro = (f'<h2 id="calibration">Readings: raw and on Goldmann\'s scale</h2><p>{esc(raw)} '
+             "are <b>raw</b>: computed from the instrument's pressure at the apex at the two "
+             "applanations, which includes the cornea's resistance (so raw IOPg reads above the "
+             "true IOP). The "
+             'columns named <span class="cal">&hellip;_cal</span> are the <b>Goldmann-equivalent'
+             "</b> readings [mmHg]: the raw ones mapped by the instrument's calibration for the "
+             "point's instrument, resolution and model version, fitted on the model's IOP sweep "
+             "at a reference eye (IOPnc_cal is the Corvis-style IOP from P1 alone; "
+             "docs/calibration.md).</p>")
+    if not ok:
+        return intro + '<p class="muted">They appear when the first point has finished.</p>'
+    used: dict[str, int] = {}
+    missing: dict[str, int] = {}
+    for r in ok:
+        if r["calibration"]:
+            used[r["calibration"]] = used.get(r["calibration"], 0) + 1
+        if r["calibration_missing"]:
+            missing[r["calibration_missing"]] = missing.get(r["calibration_missing"], 0) + 1
+    items = [f"<li>{n} point{'s' if n > 1 else ''} calibrated with <code>{esc(label)}</code>"
+             "</li>" for label, n in used.items()]
+    items += [f'<li class="error">{n} point{"s" if n > 1 else ""} without calibrated readings: '
+              f"{_reason_html(reason)}</li>" for reason, n in missing.items()]
+    return intro + f'<ul id="calibration-status">{"".join(items)}</ul>'
+
+
 def _metrics_table(records: list[dict[str, Any]]) -> str:
+    columns = metric_columns()
     headers = (["#"] + [f"{n} [{PARAMETERS[n].unit}]" for n in SWEPT] + ["status"]
-               + [f'<span title="{esc(long)}">{esc(n)} [{esc(unit)}]</span>'
-                  for n, (unit, long) in METRICS.items()])
+               + [_metric_header(n) for n in columns])
     rows = []
     for rec in records[:TABLE_LIMIT]:
         index = (f'<a href="?point={rec["index"]}#figures" title="show its history">'
                  f'{rec["index"]}</a>' if rec["status"] == "ok" else str(rec["index"]))
         status = esc(rec["status"]) + (" (reused)" if rec["reused"] else "")
         rows.append([index] + [number(rec[n], 6) for n in SWEPT] + [status]
-                    + [number(rec[n]) for n in METRICS])
+                    + [number(rec[n]) for n in columns])
     numeric = set(range(1, 1 + len(SWEPT))) | set(range(2 + len(SWEPT), 2 + len(SWEPT)
-                                                      + len(METRICS)))
+                                                      + len(columns)))
     more = (f'<p class="muted">First {TABLE_LIMIT} of {len(records)} points; the metrics JSON '
             f"has them all.</p>" if len(records) > TABLE_LIMIT else "")
-    return ('<h2 id="metrics">Metrics of the points</h2>'
+    return (_calibration_section(records) + '<h2 id="metrics">Metrics of the points</h2>'
             '<div class="points" style="overflow-x:auto">'
             + table(headers, rows, numeric, nowrap=True) + "</div>" + more)
 

@@ -86,7 +86,7 @@ def get_sweep(job_id: str, con: sqlite3.Connection = Depends(get_db)):
 def get_metrics(job_id: str, con: sqlite3.Connection = Depends(get_db)):
     row = job_or_404(con, job_id)
     return {"id": job_id, "status": row["status"], "units": schemas.units(),
-            "points": point_records(con, job_id)}
+            "points": point_records(con, row)}
 
 
 def get_dataset(job_id: str, request: Request, con: sqlite3.Connection = Depends(get_db)):
@@ -140,7 +140,7 @@ def identify_endpoint(body: schemas.IdentifyRequest, con: sqlite3.Connection = D
                    for k, v in body.measurement.model_dump().items() if v is not None}
     try:
         table = SweepTable.from_records(json.loads(row["spec_json"]),
-                                        point_records(con, body.job_id))
+                                        point_records(con, row))
         est = identify(table, measurement, body.thickness, body.pmax, body.instrument)
     except IdentifyError as err:
         loc = ["body", "measurement", err.field] if err.field in MEASURABLE \
@@ -195,7 +195,9 @@ def build_router(settings: Settings, SweepRequest, auth) -> APIRouter:  # noqa: 
         summary="Status of a job: points total, done and failed, timestamps, error")
     add("/sweeps/{job_id}/metrics", get_metrics, methods=["GET"], response_model=schemas.Metrics,
         tags=["sweeps"], dependencies=deps, responses={**not_found, **unauthorized},
-        summary="ORA and Corvis-style metrics of every point (null where missing)")
+        summary="ORA and Corvis-style metrics of every point, the raw readings (P1, IOPg, ...) "
+                "beside their Goldmann-equivalent calibrated forms (P1_cal, IOPg_cal, ...; null "
+                "where missing, calibration_missing says why)")
     add("/sweeps/{job_id}/dataset", get_dataset, methods=["GET"], tags=["sweeps"],
         dependencies=deps, response_class=FileResponse,
         responses={200: {"content": {"application/x-netcdf": {}},

@@ -24,7 +24,8 @@ from airpuff_core.params import (
     ParamSpec,
     choice_default_text,
 )
-from airpuff_core.result import METRICS
+from airpuff_core.calibration import CALIBRATED
+from airpuff_core.result import METRICS, RAW_READINGS
 from sweep.identification import DEFAULT_SIGMA, MEASURABLE, SIGMA_RANGE, UNITS
 
 from .status import JOB_STATUSES, POINT_STATUSES, JobStatusName, PointStatusName
@@ -148,9 +149,28 @@ def _point_record_model() -> type[BaseModel]:
     fields["reused"] = (bool, Field(description="true if the result was computed earlier "
                                                 "(by this or another job) and reused"))
     for name, (unit, long_name) in METRICS.items():
-        fields[name] = (Optional[float], Field(description=f"{long_name} [{unit}]; null when "
-                                                            "missing or not computed",
+        raw = (f"; the raw reading, not on Goldmann's scale (calibrated: {name}_cal)"
+               if name in RAW_READINGS else "")
+        fields[name] = (Optional[float], Field(description=f"{long_name} [{unit}]{raw}; null "
+                                                            "when missing or not computed",
                                                json_schema_extra={"x-unit": unit}))
+    fields["model_version"] = (Optional[str], Field(
+        description="model version (hash of the numerical source code) that computed the "
+                    "point; null unless the point is ok and its version is known"))
+    for name, (unit, long_name) in CALIBRATED.items():
+        fields[name] = (Optional[float], Field(
+            description=f"{long_name} [{unit}]: on the Goldmann-equivalent scale, the raw "
+                        "readings mapped by the instrument's calibration for the point's "
+                        "instrument, resolution and model version (docs/calibration.md); null "
+                        "when the raw reading is missing or no calibration applies "
+                        "(calibration_missing says why)", json_schema_extra={"x-unit": unit}))
+    fields["calibration"] = (Optional[str], Field(
+        description="the calibration applied to the point's readings (file, instrument, model "
+                    "version, resolution); null if none applies"))
+    fields["calibration_missing"] = (Optional[str], Field(
+        description="why no calibration applies to this ok point (no calibration for its "
+                    "instrument, resolution, options or model version), with the `airpuff "
+                    "calibrate` command that makes one; null when calibrated or not ok"))
     return create_model("PointRecord", **fields)
 
 
@@ -160,7 +180,8 @@ PointRecord = _point_record_model()
 class Metrics(BaseModel):
     id: str = Field(description="job id")
     status: JobStatusName = Field(description="job status")
-    units: dict[str, str] = Field(description="unit of every numeric field of the point records")
+    units: dict[str, str] = Field(description="unit of every numeric field of the point records "
+                                              "(raw readings and their calibrated `_cal` forms)")
     points: list[PointRecord] = Field(description="one record per grid point, in index order")  # type: ignore[valid-type]
 
 
@@ -199,6 +220,7 @@ class QueueProblem(BaseModel):
 def units() -> dict[str, str]:
     u = {name: PARAMETERS[name].unit for name in SWEPT}
     u.update({name: unit for name, (unit, _) in METRICS.items()})
+    u.update({name: unit for name, (unit, _) in CALIBRATED.items()})
     return u
 
 
@@ -256,4 +278,6 @@ class IdentifyResult(BaseModel):
     IOP_identified: bool = Field(description="false if the IOP interval spans the whole sweep")
     E0_identified: bool = Field(description="false if the E0 interval spans the whole sweep")
     chi2_min: float = Field(description="chi^2 at the estimate")
+    scale: str = Field(description="the scale of the measured P1 and P2: the sweep's raw "
+                                   "readings, not the Goldmann-equivalent P1_cal and P2_cal")
     notes: list[str] = Field(description="caveats (unidentified parameter, failed points, ...)")

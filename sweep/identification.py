@@ -48,6 +48,11 @@ MEASURABLE = tuple(DEFAULT_SIGMA)
 # instrument resolves a difference, and chi^2 divides by sigma^2, which underflows to 0 (at
 # sigma ~ 1e-162) and would make every point of the sweep look infinitely far.
 SIGMA_RANGE = (1e-6, 1e6)
+# The scale of the measured pressures: the sweep's raw readings, never the calibrated ones of
+# airpuff_core.calibration (docs/calibration.md), so that both sides of chi^2 are on one scale.
+SCALE = ("raw: P1 and P2 are compared with the sweep's raw readings (the instrument's pressure at "
+         "the apex at each applanation, which includes the cornea's resistance), not with the "
+         "Goldmann-equivalent P1_cal and P2_cal; give uncalibrated readings")
 # Units of the measured quantities and of the estimated and given parameters (user units).
 UNITS = {**{name: METRICS[name][0] for name in MEASURABLE},
          **{name: PARAMETERS[name].unit for name in ("IOP", "E0", "thickness", "pmax")}}
@@ -331,6 +336,7 @@ class Estimate:
             "model_at_estimate": {k: r(v) for k, v in self.model_at_estimate.items()},
             "interpolation_sigma": {k: r(v) for k, v in self.interpolation_sigma.items()},
             "thickness": self.thickness, "pmax": self.pmax, "instrument": self.instrument,
+            "scale": SCALE,
             "sweep_range": {"IOP": list(self.sweep_IOP), "E0": list(self.sweep_E0)},
             "points_not_ok": self.n_not_ok,
             "method": self.method, "notes": list(self.notes),

@@ -26,10 +26,11 @@ LISTEN_RE = re.compile(r"listening on (http://\S+?:\d+)")
 
 class ServerProcess:
     def __init__(self, data_dir: Path, *args: str, token: str | None = None,
-                 log_path: Path | None = None):
+                 log_path: Path | None = None, env: dict[str, str] | None = None):
         self.data_dir = Path(data_dir)
         self.args = list(args)
         self.token = token
+        self.env = dict(env or {})  # set in the server's environment
         self.log_path = Path(log_path) if log_path else self.data_dir.parent / (
             self.data_dir.name + f"-server-{time.monotonic_ns()}.log")
         self.proc: subprocess.Popen | None = None
@@ -37,7 +38,7 @@ class ServerProcess:
 
     # -- life cycle ---------------------------------------------------------------------------
     def start(self, timeout: float = 180.0, wait_runner: bool = False) -> "ServerProcess":
-        env = dict(os.environ)
+        env = {**os.environ, **self.env}
         env.pop("AIRPUFF_API_TOKEN", None)
         if self.token is not None:
             env["AIRPUFF_API_TOKEN"] = self.token

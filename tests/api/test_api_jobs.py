@@ -14,6 +14,7 @@ import pytest
 import xarray as xr
 
 from airpuff_core.params import RunParams
+from airpuff_core.provenance import model_version
 from airpuff_core.result import METRICS
 from sweep.storage import failed_path, point_key, point_path
 from tests.api.support import ServerProcess, post_at_once, submit, wait_job
@@ -113,6 +114,14 @@ def test_job_runs_and_metrics_match_point_files(client, server, tmp_path):
             for name in METRICS:
                 v = float(sel[name])
                 assert same(None if not np.isfinite(v) else v, rec[name]), name
+            # no calibration for these options: the calibrated readings are missing, and the
+            # records say why as the netCDF does, naming the command that makes one
+            if rec["status"] == "ok":
+                assert rec["model_version"] == str(sel["model_version"].values) == model_version()
+                assert rec["calibration"] is None and rec["IOPg_cal"] is None
+                assert ("make one with: airpuff calibrate --instrument paper --resolution coarse "
+                        "--model paper --t-end 1" in rec["calibration_missing"])
+                assert rec["calibration_missing"] in ds["IOPg_cal"].attrs["comment"]
     print(f"\n4-point job: {wall:.1f} s wall; {n_ok} ok")
 
 

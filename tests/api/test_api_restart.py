@@ -138,7 +138,9 @@ def as_schema_version_2(db_path, points_dir, job_id: str) -> None:
 def test_a_database_of_schema_version_2_is_migrated_and_its_points_reused(tmp_path):
     """Schema version 3 dropped the points columns nothing read (params_json, wall_s,
     computed_by, finished_at): a server started on a version-2 database keeps its jobs and points,
-    reuses the stored points and computes new ones into the migrated table."""
+    reuses the stored points and computes new ones into the migrated table.  (Version 5 added
+    each point's model version; a row without one gets it from its key: the records, calibrated
+    readings included, stay the same.)"""
     data = tmp_path / "data"
     body = {"E0": [0.4, 0.6], "IOP": [16.0], "thickness": [0.5], "pmax": [10.0],
             "resolution": "coarse", "t_end": 3.0}
@@ -170,9 +172,10 @@ def test_a_database_of_schema_version_2_is_migrated_and_its_points_reused(tmp_pa
 
         con = sqlite3.connect(data / "airpuff.db")
         try:
-            assert con.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 4
+            assert con.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 5
             columns = [r[1] for r in con.execute("PRAGMA table_info(points)")]
-            assert columns == ["key", "status", "message", "metrics_json", "submissions"]
+            assert columns == ["key", "status", "message", "metrics_json", "submissions",
+                               "model_version"]
             stored = {k: (st, json.loads(m), n) for k, st, m, n in con.execute(
                 "SELECT key, status, metrics_json, submissions FROM points")}
         finally:

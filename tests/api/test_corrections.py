@@ -1,26 +1,75 @@
 """Corrections over HTTP (api/corrections.py): a real server on a real coarse sweep's points:
 fit, apply, the Sobol indices, and the job page."""
 
+import json
 import shutil
 
 import numpy as np
 import pytest
+import xarray as xr
 
+from airpuff_core.calibration import FORMAT
+from airpuff_core.params import RunParams
+from airpuff_core.provenance import model_version
 from sweep.correction import Correction, fit_correction
 from sweep.identification import SweepTable
 
 from tests.api.support import ServerProcess, wait_job
+
+# the coefficients of a calibration made for the test (docs/calibration.md's formulas)
+COEFFICIENTS = {"pressure_offset": -7.25, "pressure_slope": 0.8875, "crf_constant": 1.5,
+                "iopcc_ora_scale": 1.2, "iopcc_ora_constant": 3.0, "iopnc_offset": -6.0,
+                "iopnc_slope": 0.9}
+
+
+def write_calibration(directory) -> None:
+    """A calibration of the paper's jet at coarse resolution for this model version, for the
+    runs of the coarse sweep (the default options)."""
+    options = {k: v for k, v in RunParams(resolution="coarse").to_dict().items() if k != "IOP"}
+    directory.mkdir()
+    (directory / "paper_test.json").write_text(json.dumps({
+        "format": FORMAT, "instrument": "paper", "model_version": model_version(),
+        "resolution": "coarse", "model": "paper", "run_options": options,
+        "coefficients": COEFFICIENTS}))
+
+
+def check_calibrated(points, dataset) -> None:
+    """Each point's calibrated readings are the formulas of docs/calibration.md applied to its
+    raw ones, and those of the job's netCDF."""
+    c = COEFFICIENTS
+    n = 0
+    for p in points:
+        assert p["calibration"].startswith("paper_test.json") and p["calibration_missing"] is None
+        if p["P1"] is None or p["P2"] is None:
+            assert p["IOPg_cal"] is None
+            continue
+        n += 1
+        p1, p2 = (c["pressure_offset"] + c["pressure_slope"] * p[k] for k in ("P1", "P2"))
+        expected = {"P1_cal": p1, "P2_cal": p2, "CH_cal": p1 - p2, "IOPg_cal": (p1 + p2) / 2,
+                    "IOPcc_cal": p1 - 0.43 * p2, "CRF_cal": p1 - 0.70 * p2 + c["crf_constant"],
+                    "IOPcc_ora_cal": c["iopcc_ora_scale"] * (p2 - 0.43 * p1)
+                    + c["iopcc_ora_constant"],
+                    "IOPnc_cal": c["iopnc_offset"] + c["iopnc_slope"] * p["P1"]}
+        at = dataset.sel(E0=p["E0"], IOP=p["IOP"], thickness=p["thickness"], pmax=p["pmax"])
+        for name, value in expected.items():
+            assert p[name] == pytest.approx(value, abs=1e-9), name
+            assert float(at[name]) == pytest.approx(value, abs=1e-9), name
+    assert n >= 1
 
 
 @pytest.mark.slow
 @pytest.mark.cluster
 @pytest.mark.service
 def test_http_corrections_on_a_finished_job(coarse_sweep, tmp_path):
-    """The real server (1 worker) on the coarse sweep's points (reused): fit, apply (rows and CSV
-    text), the Sobol indices, and the job page with the formula and the residual figure."""
+    """The real server (1 worker) on the coarse sweep's points (reused), with a calibration of
+    its own: the calibrated readings beside the raw ones in the metrics, the dataset and the
+    page; fit, apply (rows and CSV text), the Sobol indices, and the job page with the formula
+    and the residual figure."""
     data = tmp_path / "data"
     shutil.copytree(coarse_sweep.parent / "points", data / "points")
-    srv = ServerProcess(data, "--workers", "1").start()
+    write_calibration(tmp_path / "calibrations")
+    srv = ServerProcess(data, "--workers", "1",
+                        env={"AIRPUFF_CALIBRATION_DIR": str(tmp_path / "calibrations")}).start()
     try:
         with srv.client() as c:
             r = c.post("/sweeps", json={"E0": [0.4, 0.7], "IOP": [12, 22], "thickness": [0.45, 0.6],
@@ -28,8 +77,15 @@ def test_http_corrections_on_a_finished_job(coarse_sweep, tmp_path):
             assert r.status_code == 202, r.text
             job = r.json()["id"]
             assert wait_job(c, job, timeout=300)["status"] == "done"
+            points = c.get(f"/sweeps/{job}/metrics").json()["points"]
+            (tmp_path / "job.nc").write_bytes(c.get(f"/sweeps/{job}/dataset").content)
+            with xr.open_dataset(tmp_path / "job.nc") as ds:
+                check_calibrated(points, ds)
             page = c.get(f"/jobs/{job}").text  # a page view computes nothing
             assert "None yet" in page and "Not computed yet" in page
+            n_ok = sum(p["status"] == "ok" for p in points)
+            assert "IOPg_cal [mmHg]" in page
+            assert f"{n_ok} points calibrated with <code>paper_test.json" in page
             assert c.post(f"/sweeps/{'0' * 32}/corrections",
                           json={"instrument": "ora"}).status_code == 404
             r = c.post(f"/sweeps/{job}/corrections", json={"instrument": "goldmann"})

@@ -134,6 +134,7 @@ def test_cli_json(id_sweep, truths):
     assert d["measurement"]["P1"] == {"value": round(m["P1"], 3), "sigma": 0.3}
     assert d["measurement"]["P2"]["sigma"] == 0.5  # the default
     assert set(d) >= {"IOP", "E0", "IOP_interval", "E0_interval", "E0_identified", "chi2_min"}
+    assert d["scale"].startswith("raw: P1 and P2 are compared with the sweep's raw readings")
 
 
 def test_refine_with_solver_runs(table, truths):
@@ -177,6 +178,7 @@ def test_http_identify_on_a_finished_job(id_sweep, truths, tmp_path):
             local = identify(SweepTable.from_netcdf(id_sweep[0]),
                              {"P1": m["P1"], "P2": m["P2"]}, thickness=0.5).to_dict()
             assert d["IOP"] == local["IOP"] and d["E0_interval"] == local["E0_interval"]
+            assert d["scale"] == local["scale"] and d["scale"].startswith("raw")
             r = c.post("/identify", json={**body, "job_id": job,
                                           "measurement": {"P1": {"value": 60.0}}})
             assert r.status_code == 422 and r.json()["detail"][0]["field"] == "P1", r.text
