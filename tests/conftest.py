@@ -41,6 +41,16 @@ def coarse_run(tmp_path_factory):
     return json.loads(lines[0]), out
 
 
+@pytest.fixture(scope="session")
+def clinical_paper_result():
+    """One run of the clinical preset's normal eye (CCT 0.54 mm, IOP 16 mmHg) at paper
+    resolution in this process, shared by the tests that need such a run (its energy budget,
+    the base of the sound-speed check)."""
+    from airpuff_core import RunParams, simulate
+
+    return simulate(RunParams(model="clinical", thickness=0.54, resolution="paper"))
+
+
 @pytest.fixture(scope="module")
 def dask_client():
     """A LocalCluster of two worker processes sharing the Numba cache, for one test module (one

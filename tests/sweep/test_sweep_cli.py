@@ -80,15 +80,11 @@ def test_ctrl_c_then_resume_computes_only_the_rest(tmp_path):
 
 
 @pytest.mark.slow
-def test_demo_and_analysis_scripts_on_a_stored_sweep(tmp_path):
-    """examples/analyze_sweep.py reads a sweep.nc with plain xarray and writes its figure."""
-    out = tmp_path / "s"
-    run = subprocess.run(airpuff_argv("sweep", "--E0", "0.4,0.6", "--IOP", "12,20", "--resolution",
-                                 "coarse", "--t-end", "3", "--out", str(out), "--json"),
-                         capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stderr
+def test_demo_and_analysis_scripts_on_a_stored_sweep(coarse_sweep, tmp_path):
+    """examples/analyze_sweep.py reads a sweep.nc written by `airpuff sweep` (the session's
+    coarse sweep, tests/conftest.py) with plain xarray and writes its figure."""
     script = Path(__file__).resolve().parents[2] / "examples" / "analyze_sweep.py"
-    res = subprocess.run([sys.executable, script, str(out / "sweep.nc"), "--out", str(tmp_path / "s.png")],
+    res = subprocess.run([sys.executable, script, str(coarse_sweep), "--out", str(tmp_path / "s.png")],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert (tmp_path / "s.png").stat().st_size > 10_000
@@ -96,7 +92,7 @@ def test_demo_and_analysis_scripts_on_a_stored_sweep(tmp_path):
 
     from sweep.plots import plot_metrics_vs_iop
 
-    with xr.open_dataset(out / "sweep.nc") as ds:
+    with xr.open_dataset(coarse_sweep) as ds:
         png = plot_metrics_vs_iop(ds.load(), tmp_path / "m.png")
     assert png.stat().st_size > 10_000
 
