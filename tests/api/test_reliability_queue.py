@@ -105,9 +105,11 @@ def test_a_run_above_the_step_budget_is_refused_at_validation(queued_only):
 
 @pytest.fixture(scope="module")
 def limited(tmp_path_factory):
-    """One worker process, a wall-clock limit of TIME_LIMIT_S per point."""
+    """One worker process, a wall-clock limit of TIME_LIMIT_S per point; room for 100,000
+    points waiting (the six large jobs below)."""
     with ServerProcess(tmp_path_factory.mktemp("limited") / "data", "--workers", "1",
-                       "--task-time-limit", str(TIME_LIMIT_S)).running(wait_runner=True) as s:
+                       "--task-time-limit", str(TIME_LIMIT_S), "--max-pending-points", "100000",
+                       "--max-pending-per-client", "100000").running(wait_runner=True) as s:
         yield s
 
 
@@ -205,12 +207,12 @@ def test_a_small_job_is_not_starved_behind_a_large_one(limited):
 
 @pytest.mark.cluster
 @pytest.mark.slow
-def test_six_large_jobs_do_not_balloon_the_server(tmp_path):
+def test_six_large_jobs_do_not_balloon_the_server(limited):
     """Item 2: six jobs of 10,000 points each: the server feeds Dask a window of tasks, so its
-    memory stays near where it started (all 60,000 submitted at once took 300 -> 985 MB)."""
-    server = ServerProcess(tmp_path / "data", "--workers", "1", "--max-pending-points",
-                           "100000", "--max-pending-per-client", "100000")
-    with server.running(wait_runner=True), server.client(timeout=120) as c:
+    memory stays near where it was before they came (all 60,000 submitted at once took 300 ->
+    985 MB)."""
+    server = limited
+    with server.client(timeout=120) as c:
         before = rss_mb(server.proc.pid)
         ids = []
         for k in range(6):
