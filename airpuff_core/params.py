@@ -61,18 +61,13 @@ PRESTRETCH_MAX = 10.0
 # The choices each ``model`` preset makes; an option given explicitly overrides its preset.
 MODEL_PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"cornea": "membrane", "globe": "rigid", "ve_g": 0.0, "ve_tau": 10.0,
-              "transverse_shear_modulus": 0.0, "hyperviscosity_speed": 0.0,
-              "hyperviscosity_divergence": 0.0},
+              "transverse_shear_modulus": 0.0},
     # the shell, the compliant globe, the viscoelasticity that Kling et al. (PLoS ONE 2014,
     # e104904, table 3) fitted to human in-vivo air-puff deformation (docs/model.md section 10),
     # and the transverse shear modulus measured on full-thickness human stroma, 9.48 +- 2.92 kPa
-    # (Petsche et al., IOVS 53 (2012) 873; docs/model.md section 13); the fluid's
-    # stabilisation whose effect does not grow with the sound speed: the velocity's
-    # hyperviscosity at the fixed speed 15 m/s and the divergence damped (docs/model.md
-    # section 4, issue 25)
+    # (Petsche et al., IOVS 53 (2012) 873; docs/model.md section 13)
     "clinical": {"cornea": "shell", "globe": "compliant", "ve_g": 0.3, "ve_tau": 10.0,
-                 "transverse_shear_modulus": 9.48, "hyperviscosity_speed": 15.0,
-                 "hyperviscosity_divergence": 0.5},
+                 "transverse_shear_modulus": 9.48},
 }
 # the numeric parameters a preset sets: None (not given) until ``RunParams.validate``
 PRESET_PARAMETERS = tuple(name for name in MODEL_PRESETS["clinical"]
@@ -198,12 +193,10 @@ PARAMETERS: dict[str, ParamSpec] = {
            low_inc=True),
         _p("hyperviscosity_speed", "m/s", 0.0, 0.0, 1500.0,
            "speed c_v in the strength gamma c_v h^5 of the hyperviscosity on the velocity, in "
-           "place of the sound speed c (0: c); set by the model preset (paper 0, clinical 15; "
-           "docs/model.md section 4)", low_inc=True),
+           "place of the sound speed c (0: c; docs/model.md section 4)", low_inc=True),
         _p("hyperviscosity_divergence", "1", 0.0, 0.0, 10.0,
            "strength gamma_div of the damping of the velocity's divergence, a bulk viscosity "
-           "gamma_div c h (0 switches it off); set by the model preset (paper 0, clinical 0.5; "
-           "docs/model.md section 4)", low_inc=True),
+           "gamma_div c h (0 switches it off; docs/model.md section 4)", low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories",
            si=("output_interval_s", 1e-3)),
         _p("cfl", "1", 0.6, 0.0, 0.6,
@@ -286,9 +279,8 @@ CHOICE_DESCRIPTIONS = {
                                "on density), brookshaw (L^3 on both: first order in h at walls "
                                "and cornea) or consistent (K* L K on density and velocity)",
     "model": "preset: paper (membrane cornea, rigid globe, elastic) or clinical (shear-deformable "
-             "shell cornea, G_t 9.48 kPa; compliant globe; viscoelastic: ve_g 0.3, ve_tau 10 ms; "
-             "the fluid's stabilisation not growing with c: hyperviscosity_speed 15 m/s, "
-             "hyperviscosity_divergence 0.5); explicit options override it",
+             "shell cornea, G_t 9.48 kPa; compliant globe; viscoelastic: ve_g 0.3, ve_tau 10 ms); "
+             "explicit options override it",
     "cornea": "; ".join(f"{e.name}: {e.description}" for e in CORNEAS.values())
               + "; shell (the older spelling): mindlin with transverse_shear_modulus > 0, "
                 "kirchhoff with 0 (the clinical preset's shell)",
