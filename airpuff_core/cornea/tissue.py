@@ -90,6 +90,11 @@ class ViscoelasticTissue:
         self.weight = np.zeros(self.g.shape[0])
         self._work = model.history_work()
         self._work1 = model.history_work()
+        # the strains of the trial state that ``overstress_work`` computed (in _work1, positions
+        # (X1, Y1)); ``commit`` makes them the strains of the state at t^n (in _work), which the
+        # next step's ``overstress_work`` then reads instead of computing them again
+        self._trial_strains = None  # (X1, Y1, strains) of the last overstress_work, or None
+        self._state_strains = None  # (X, Y, strains) of the committed state, or None
         # the relaxed rest state: previous = its equilibrium resultants, no overstress
         rows = model.resultant_rows
         self.previous = np.zeros((rows, n))
@@ -135,10 +140,15 @@ class ViscoelasticTissue:
         return (1, self.previous, self.overstress, self.decay, self.weight)
 
     def commit(self):
-        """The trial history becomes the state (buffers swapped, not copied)."""
+        """The trial history becomes the state (buffers swapped, not copied), and the trial
+        state's strains (if ``overstress_work`` computed them) the state's."""
         committed = (self.previous, self.overstress)
         self.previous, self.overstress = self._trial
         self._trial = committed
+        self._state_strains = self._trial_strains
+        self._trial_strains = None
+        if self._state_strains is not None:
+            self._work, self._work1 = self._work1, self._work
 
     def stored_energy(self, overstress):
         """Psi [J] of the overstresses (module docstring)."""
@@ -160,8 +170,15 @@ class ViscoelasticTissue:
         step, (X1, Y1) the trial state at its end (with the cornea's trial directors)."""
         m = self.model
         n = m.n
-        (E1a, E2a, *bend_a), _ = m.history_strains(X0, Y0, self._work)
-        (E1b, E2b, *bend_b), _ = m.history_strains(X1, Y1, self._work1, trial=True)
+        state = self._state_strains
+        if state is not None and state[0] is X0 and state[1] is Y0:
+            # the state is the last step's trial state, whose strains the last call computed
+            E1a, E2a, *bend_a = state[2]
+        else:
+            (E1a, E2a, *bend_a), _ = m.history_strains(X0, Y0, self._work)
+        strains_b, _ = m.history_strains(X1, Y1, self._work1, trial=True)
+        self._trial_strains = (X1, Y1, strains_b)
+        E1b, E2b, *bend_b = strains_b
         q = 0.5 * (overstress0.sum(axis=0) + overstress1.sum(axis=0))
         work = np.sum(m.A0 * (q[0, :n - 1] * (E1b - E1a) + q[1, :n - 1] * (E2b - E2a)))
         work = m.add_overstress_bending_work(work, q, bend_a, bend_b)
