@@ -15,7 +15,7 @@ wall time (``benchmarks/yardstick.py``).  Parts, in the order of a step:
   all nodes or at the interface nodes in the coupling iterations;
 - coupling iterations: the Dirichlet-Neumann iterations, split into the cornea's sub-steps
   (``advance``), the globe's walls (``impose``), and the rest of an iteration (Python, the density and pressure at the interface);
-- observers: the energy budget, the blow-up checks, the recorder;
+- observers: the energy budget, the blow-up checks, the recorder (each shown apart);
 - the rest: the predictor's other kernels, the commit, Python's orchestration.
 """
 
@@ -104,9 +104,10 @@ def instrument():
     ]
     wrapped += [(cls, "advance", "coupling: cornea sub-steps", None) for cls in cornea_classes]
     from airpuff_core import blowup, energy, recorder
-    for cls in (energy.EnergyBudget, blowup.BlowUpCheck, recorder.Recorder):
+    for cls, label in ((energy.EnergyBudget, "energy budget"),
+                       (blowup.BlowUpCheck, "blow-up checks"), (recorder.Recorder, "recorder")):
         for name in ("coupled", "committed"):
-            wrapped.append((cls, name, "observers", None))
+            wrapped.append((cls, name, f"observers: {label}", None))
     wrapped.append((CoupledModel, "step", "the rest (Python, small kernels)", None))
     originals = []
     seen = set()
