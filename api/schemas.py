@@ -241,7 +241,8 @@ class MeasuredValue(BaseModel):
 Measurement = create_model(
     "Measurement", __config__=ConfigDict(extra="forbid"),
     **{name: (Optional[MeasuredValue], Field(default=None,
-                                             description=f"{METRICS[name][1]} [{UNITS[name]}]"))
+                                             description=f"{(METRICS | CALIBRATED)[name][1]} "
+                                                         f"[{UNITS[name]}]"))
        for name in MEASURABLE})
 
 
@@ -262,7 +263,10 @@ class IdentifyRequest(BaseModel):
         default=None, description="the instrument the measurement was taken with: it must be the "
                                   "one whose pulse the job was computed with (default: the job's)")
     measurement: Measurement = Field(  # type: ignore[valid-type]
-        description="any non-empty subset of " + ", ".join(MEASURABLE))
+        description="any non-empty subset of " + ", ".join(MEASURABLE) + ", with the pressures "
+                    "on one scale: the raw P1, P2 or at most two of the calibrated P1_cal, "
+                    "P2_cal, IOPg_cal, CH_cal (those need the job's points to have a calibration; "
+                    "the result's `scale` says which was used)")
     refine: Annotated[bool, Strict()] = Field(
         default=False, description="must be false: refinement with solver runs is only offered "
                                    "by `airpuff identify --refine`")
@@ -278,6 +282,8 @@ class IdentifyResult(BaseModel):
     IOP_identified: bool = Field(description="false if the IOP interval spans the whole sweep")
     E0_identified: bool = Field(description="false if the E0 interval spans the whole sweep")
     chi2_min: float = Field(description="chi^2 at the estimate")
-    scale: str = Field(description="the scale of the measured P1 and P2: the sweep's raw "
-                                   "readings, not the Goldmann-equivalent P1_cal and P2_cal")
+    scale: str = Field(description="the scale of the measured pressures: `raw: ...` (P1, P2 "
+                                   "against the sweep's raw readings) or `calibrated: ...` "
+                                   "(P1_cal, P2_cal, IOPg_cal, CH_cal against the sweep's "
+                                   "Goldmann-equivalent readings)")
     notes: list[str] = Field(description="caveats (unidentified parameter, failed points, ...)")

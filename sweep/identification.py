@@ -26,6 +26,12 @@ Method (see docs/identify.md for the measured accuracy):
 
 ``refine`` improves a grid estimate with direct solver runs (Gauss-Newton with finite differences,
 at most ``max_runs`` runs, never leaving the sweep's box).
+
+Two scales of pressure (docs/calibration.md): the raw P1, P2 (the jet pressure at the apex at each
+applanation, what the model computes) or the calibrated P1_cal, P2_cal, IOPg_cal, CH_cal (the
+instrument's Goldmann-equivalent scale, what an ORA or a Corvis prints).  A measurement uses one
+scale; a calibrated one needs the sweep's points to have a calibration (their instrument,
+resolution and model version), and is compared with the sweep's calibrated readings.
 """
 
 from __future__ import annotations
@@ -37,24 +43,36 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from airpuff_core.calibration import CALIBRATED
 from airpuff_core.params import PARAMETERS
 from airpuff_core.result import METRICS
 
 # The measurable quantities (the one list: the command line and the HTTP API take theirs from
 # here) with the default standard uncertainty (1 sigma) of a measurement, in the metric's unit.
-DEFAULT_SIGMA = {"P1": 0.5, "P2": 0.5, "DA": 0.02, "t_A1": 0.1, "t_A2": 0.1}
+# The calibrated pressures' defaults are those of P1_cal and P2_cal at 0.5 mmHg each, carried to
+# their mean (IOPg_cal: 0.5/sqrt(2)) and difference (CH_cal: 0.5 sqrt(2)).
+RAW_SIGMA = {"P1": 0.5, "P2": 0.5, "DA": 0.02, "t_A1": 0.1, "t_A2": 0.1}
+CALIBRATED_SIGMA = {"P1_cal": 0.5, "P2_cal": 0.5, "IOPg_cal": 0.35, "CH_cal": 0.71}
+DEFAULT_SIGMA = {**RAW_SIGMA, **CALIBRATED_SIGMA}
 MEASURABLE = tuple(DEFAULT_SIGMA)
+RAW_PRESSURES = ("P1", "P2")
+CALIBRATED_PRESSURES = tuple(CALIBRATED_SIGMA)
 # The accepted range of a measurement's sigma, in the metric's unit.  Below the lower bound no
 # instrument resolves a difference, and chi^2 divides by sigma^2, which underflows to 0 (at
 # sigma ~ 1e-162) and would make every point of the sweep look infinitely far.
 SIGMA_RANGE = (1e-6, 1e6)
-# The scale of the measured pressures: the sweep's raw readings, never the calibrated ones of
-# airpuff_core.calibration (docs/calibration.md), so that both sides of chi^2 are on one scale.
-SCALE = ("raw: P1 and P2 are compared with the sweep's raw readings (the instrument's pressure at "
-         "the apex at each applanation, which includes the cornea's resistance), not with the "
-         "Goldmann-equivalent P1_cal and P2_cal; give uncalibrated readings")
+# The scale of the measured pressures: both sides of chi^2 are on one scale.
+SCALE = {
+    "raw": ("raw: P1 and P2 are compared with the sweep's raw readings (the instrument's pressure "
+            "at the apex at each applanation, which includes the cornea's resistance), not with "
+            "the Goldmann-equivalent P1_cal and P2_cal; give uncalibrated readings"),
+    "calibrated": ("calibrated: the measured P1_cal, P2_cal, IOPg_cal, CH_cal are compared with "
+                   "the sweep's calibrated readings (the instrument's Goldmann-equivalent scale, "
+                   "docs/calibration.md), as an ORA or a Corvis prints them"),
+}
 # Units of the measured quantities and of the estimated and given parameters (user units).
-UNITS = {**{name: METRICS[name][0] for name in MEASURABLE},
+UNITS = {**{name: METRICS[name][0] for name in RAW_SIGMA},
+         **{name: CALIBRATED[name][0] for name in CALIBRATED_SIGMA},
          **{name: PARAMETERS[name].unit for name in ("IOP", "E0", "thickness", "pmax")}}
 
 DELTA_CHI2_68 = 2.30  # 68.3 % joint region of 2 parameters
@@ -105,7 +123,27 @@ def make_measurement(values: Mapping[str, Any]) -> dict[str, tuple[float, float]
     if not out:
         raise IdentifyError("measurement", "no measured quantity given; give at least one of "
                                            + ", ".join(MEASURABLE))
+    raw = [n for n in RAW_PRESSURES if n in out]
+    calibrated = [n for n in CALIBRATED_PRESSURES if n in out]
+    if raw and calibrated:
+        raise IdentifyError(calibrated[0], f"{', '.join(raw)} (raw) and {', '.join(calibrated)} "
+                                           "(calibrated) are on two scales: accepted the raw "
+                                           "P1, P2 or the calibrated P1_cal, P2_cal, IOPg_cal, "
+                                           "CH_cal, not both")
+    if len(calibrated) > 2:
+        raise IdentifyError(calibrated[2], f"{', '.join(calibrated)}: accepted at most two of "
+                                           "P1_cal, P2_cal, IOPg_cal, CH_cal (any two give the "
+                                           "others: IOPg = (P1 + P2)/2, CH = P1 - P2)")
     return out
+
+
+def measurement_scale(measurement: Mapping[str, Any]) -> str | None:
+    """``"raw"`` or ``"calibrated"``: the scale of the measured pressures; None if none given."""
+    if any(n in measurement for n in CALIBRATED_PRESSURES):
+        return "calibrated"
+    if any(n in measurement for n in RAW_PRESSURES):
+        return "raw"
+    return None
 
 
 # -- the sweep table ------------------------------------------------------------------------------
@@ -126,6 +164,7 @@ class SweepTable:
     run_options: dict = field(default_factory=dict)
     model_version: str = ""  # of the ok points (several, comma-separated, if they differ)
     ok: np.ndarray | None = None  # shape (E0, IOP, thickness, pmax): the point's status is ok
+    calibration_missing: str = ""  # why the calibrated readings are missing, where they are
 
     @classmethod
     def from_netcdf(cls, path, names=MEASURABLE) -> "SweepTable":
@@ -144,17 +183,25 @@ class SweepTable:
             if names is None:
                 names = [n for n in METRICS if n in ds.variables]
             missing = [n for n in ("E0", "IOP", "thickness", "pmax", "status", *names)
-                       if n not in ds.variables]
+                       if n not in ds.variables and n not in CALIBRATED]
             if missing:
                 raise IdentifyError("sweep", f"{path} is not a combined airpuff sweep "
                                              f"(missing {', '.join(missing)})")
             ds = ds.transpose("E0", "IOP", "thickness", "pmax", ...)
             ok = np.asarray(ds["status"].values).astype(str) == "ok"
             metrics = {}
+            reasons = []
             for name in names:
+                if name not in ds.variables:  # a file combined before calibrated readings existed
+                    metrics[name] = np.full(ok.shape, np.nan)
+                    reasons.append("the sweep file has no calibrated readings (combined by an "
+                                   "older version: combine it again)")
+                    continue
                 a = np.asarray(ds[name].values, float).copy()
                 a[~ok] = np.nan
                 metrics[name] = a
+                if name in CALIBRATED and ds[name].attrs.get("comment"):
+                    reasons.append(str(ds[name].attrs["comment"]))
             try:
                 options = json.loads(ds.attrs.get("run_options_json", "{}"))
             except ValueError:
@@ -163,7 +210,8 @@ class SweepTable:
                         if "model_version" in ds.variables else [])
             return cls(np.asarray(ds.E0.values, float), np.asarray(ds.IOP.values, float),
                        np.asarray(ds.thickness.values, float), np.asarray(ds.pmax.values, float),
-                       metrics, int((~ok).sum()), options, ",".join(versions), ok)
+                       metrics, int((~ok).sum()), options, ",".join(versions), ok,
+                       reasons[0] if reasons else "")
 
     @classmethod
     def from_records(cls, spec: Mapping[str, Any], records, names=MEASURABLE) -> "SweepTable":
@@ -174,11 +222,14 @@ class SweepTable:
         shape = tuple(len(axes[n]) for n in ("E0", "IOP", "thickness", "pmax"))
         metrics = {name: np.full(shape, np.nan) for name in names}
         versions = set()
+        reasons = set()
         ok = np.zeros(shape, bool)
         n_ok = 0
         for r in records:
             if r.get("status") != "ok":
                 continue
+            if r.get("calibration_missing"):
+                reasons.add(str(r["calibration_missing"]))
             idx = tuple(int(np.argmin(np.abs(axes[n] - float(r[n]))))
                         for n in ("E0", "IOP", "thickness", "pmax"))
             n_ok += 1
@@ -190,7 +241,7 @@ class SweepTable:
                 metrics[name][idx] = np.nan if v is None else float(v)
         return cls(axes["E0"], axes["IOP"], axes["thickness"], axes["pmax"], metrics,
                    int(np.prod(shape)) - n_ok, dict(spec.get("options") or {}),
-                   ",".join(sorted(versions)), ok)
+                   ",".join(sorted(versions)), ok, "; ".join(sorted(reasons)))
 
 
 def _axis_weights(name: str, axis: np.ndarray, value: float | None) -> list[tuple[int, float]]:
@@ -336,7 +387,7 @@ class Estimate:
             "model_at_estimate": {k: r(v) for k, v in self.model_at_estimate.items()},
             "interpolation_sigma": {k: r(v) for k, v in self.interpolation_sigma.items()},
             "thickness": self.thickness, "pmax": self.pmax, "instrument": self.instrument,
-            "scale": SCALE,
+            "scale": SCALE[measurement_scale(self.measurement) or "raw"],
             "sweep_range": {"IOP": list(self.sweep_IOP), "E0": list(self.sweep_E0)},
             "points_not_ok": self.n_not_ok,
             "method": self.method, "notes": list(self.notes),
@@ -347,10 +398,14 @@ class Estimate:
         return d
 
 
-def _check_measured_range(sl: Slice, meas, interp_sigma) -> None:
+def _check_measured_range(sl: Slice, meas, interp_sigma, calibration_missing: str = "") -> None:
     for name, (value, sigma) in meas.items():
         a = sl.metrics[name]
         finite = a[np.isfinite(a)]
+        if finite.size == 0 and name in CALIBRATED:
+            raise IdentifyError(name, f"{name} (calibrated) is not available at any ok point of "
+                                      f"the sweep slice: {calibration_missing or 'no calibration'}"
+                                      "; give the raw P1, P2 instead")
         if finite.size == 0:
             raise IdentifyError(name, f"{name} is not available at any ok point of the sweep slice "
                                       f"(thickness {sl.thickness:g} mm, pmax {sl.pmax:g} kPa)")
@@ -415,7 +470,7 @@ def identify(table: SweepTable, measurement: Mapping[str, Any], thickness: float
         raise IdentifyError("sweep", "identification needs at least 2 E0 and 2 IOP values in the "
                                      f"sweep (it has {sl.E0.size} x {sl.IOP.size})")
     interp_sigma = {name: interpolation_error(sl.E0, sl.IOP, sl.metrics[name]) for name in meas}
-    _check_measured_range(sl, meas, interp_sigma)
+    _check_measured_range(sl, meas, interp_sigma, table.calibration_missing)
     e, p, chi2, models = chi2_map(sl, meas, interp_sigma)
     if not np.isfinite(chi2).any():
         raise IdentifyError("sweep", "no part of the sweep slice has all the measured metrics "
@@ -474,13 +529,19 @@ def identify(table: SweepTable, measurement: Mapping[str, Any], thickness: float
 # -- refinement with direct solver runs -----------------------------------------------------------
 
 def solver_metrics(params: Mapping[str, Any]) -> dict[str, float]:
-    """Metrics of one direct solver run (``RunParams.from_dict(params)``); NaN where missing.
-    Module-level so that it can be sent to another process."""
+    """Metrics of one direct solver run (``RunParams.from_dict(params)``) and its calibrated
+    readings (NaN without a calibration); NaN where missing.  Module-level so that it can be
+    sent to another process."""
     from airpuff_core import simulate
+    from airpuff_core.calibration import calibrate_metrics
     from airpuff_core.params import RunParams
+    from airpuff_core.provenance import model_version
 
-    result = simulate(RunParams.from_dict(dict(params)), threads=1)  # one per sweep worker
-    return {k: float(v) for k, v in result.metrics.items()}
+    run_params = RunParams.from_dict(dict(params))
+    result = simulate(run_params, threads=1)  # one per sweep worker
+    metrics = {k: float(v) for k, v in result.metrics.items()}
+    calibrated, _, _ = calibrate_metrics(run_params.to_dict(), metrics, model_version())
+    return {**metrics, **{k: float(v) for k, v in calibrated.items()}}
 
 
 def _solver_metrics(options: dict, thickness: float, pmax: float) -> Callable[[float, float], dict]:

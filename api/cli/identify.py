@@ -14,7 +14,7 @@ import sys
 
 from airpuff_core.params import CHOICES, parse_decimal, parse_whole
 from sweep.identification import (DEFAULT_SIGMA, MEASURABLE, SCALE, UNITS, IdentifyError,
-                                  SweepTable, identify, refine)
+                                  SweepTable, identify, measurement_scale, refine)
 
 _VALUE_RE = re.compile(r"^\s*([^+±]+?)\s*(?:(?:\+-|\+/-|±)\s*(\S+))?\s*$")
 
@@ -47,9 +47,10 @@ def add_identify_parser(sub) -> None:
     """Register ``identify`` on the ``airpuff`` parser."""
     p = sub.add_parser("identify", help="estimate IOP and E0 from a measurement using a sweep",
                        description=(
-        "Estimate the true IOP and the corneal stiffness E0 from measured P1, P2 [mmHg, raw: "
-        "the scale of the sweep's P1 and P2, not the calibrated P1_cal, P2_cal], DA [mm], "
-        "t_A1, t_A2 [ms] (any subset), by interpolation on a stored sweep. Reports the estimate "
+        "Estimate the true IOP and the corneal stiffness E0 from measured pressures [mmHg] on "
+        "one scale (the raw P1, P2 of the model, or the calibrated P1_cal, P2_cal, IOPg_cal, "
+        "CH_cal that an instrument prints, which need the sweep's calibration), DA [mm], t_A1, "
+        "t_A2 [ms] (any subset), by interpolation on a stored sweep. Reports the estimate "
         "and the 68 % joint confidence region (chi2 <= min + 2.30). A measurement outside what "
         "the sweep covers exits with code 2 (no extrapolation)."))
     p.add_argument("--sweep", required=True, metavar="SWEEP_NC",
@@ -116,8 +117,9 @@ def identify_command(args) -> int:
           f"pmax {est.pmax:g} kPa")
     print("measurement: " + ", ".join(f"{k} = {v:g} +- {s:g} {UNITS[k]}"
                                       for k, (v, s) in est.measurement.items()))
-    if {"P1", "P2"} & set(est.measurement):
-        print(f"scale: {SCALE}")
+    scale = measurement_scale(est.measurement)
+    if scale is not None:
+        print(f"scale: {SCALE[scale]}")
     print(f"IOP = {est.IOP:.2f} mmHg   68 % interval {_fmt_interval(est.IOP_interval, 2)}"
           + ("" if est.IOP_identified else "  (not identified)"))
     print(f"E0  = {est.E0:.3f} MPa    68 % interval {_fmt_interval(est.E0_interval, 3)}"

@@ -21,8 +21,8 @@ import shutil
 import pytest
 
 from sweep.grid import SweepSpec
-from sweep.identification import (MEASURABLE, IdentifyError, SweepTable, identify, refine,
-                            solver_metrics)
+from sweep.identification import (RAW_SIGMA, IdentifyError, SweepTable, identify, refine,
+                                  solver_metrics)
 from sweep.runner import run_sweep
 
 from tests.conftest import airpuff
@@ -35,6 +35,7 @@ GRID = {"E0": [0.3, 0.5, 0.7], "IOP": [10.0, 14.0, 18.0, 22.0], "thickness": [0.
         "pmax": [10.0], "options": {"resolution": "coarse"}}
 # (IOP [mmHg], E0 [MPa]) off the grid in both parameters
 TRUTHS = [(12.0, 0.4), (16.0, 0.4), (20.0, 0.4), (12.0, 0.6), (20.0, 0.6)]
+RAW = tuple(RAW_SIGMA)  # the five raw measurable metrics
 IOP_TOL = 1.0  # mmHg
 E0_TOL_ALL = 0.1  # MPa, all five metrics measured
 
@@ -70,7 +71,7 @@ def _meas(metrics, names):
     return {n: metrics[n] for n in names}
 
 
-@pytest.mark.parametrize("names", [("P1", "P2"), MEASURABLE], ids=["P1P2", "all"])
+@pytest.mark.parametrize("names", [("P1", "P2"), RAW], ids=["P1P2", "all"])
 def test_round_trip_off_grid(table, truths, names):
     for (iop, e0), m in truths:
         est = identify(table, _meas(m, names), thickness=0.5, pmax=10.0)
@@ -78,13 +79,13 @@ def test_round_trip_off_grid(table, truths, names):
         assert est.IOP_interval[0] - 1e-9 <= est.IOP <= est.IOP_interval[1] + 1e-9
         assert est.E0_interval[0] - 1e-9 <= e0 <= est.E0_interval[1] + 1e-9, (names, iop, e0,
                                                                                est.to_dict())
-        if names == MEASURABLE:
+        if names == RAW:
             assert abs(est.E0 - e0) <= E0_TOL_ALL, (iop, e0, est.to_dict())
         else:  # P1 and P2 carry (almost) no information on E0: the interval is the whole sweep
             assert not est.E0_identified and est.E0_interval == pytest.approx((0.3, 0.7)), est.to_dict()
 
 
-@pytest.mark.parametrize("names", [("DA", "t_A1", "t_A2"), MEASURABLE], ids=["DAtimes", "all"])
+@pytest.mark.parametrize("names", [("DA", "t_A1", "t_A2"), RAW], ids=["DAtimes", "all"])
 def test_deformation_identifies_E0_at_low_IOP(table, truths, names):
     """DA and the applanation times bound E0 at IOP 12 mmHg (at 20 mmHg they hardly do)."""
     for (iop, e0), m in truths:
@@ -139,7 +140,7 @@ def test_cli_json(id_sweep, truths):
 
 def test_refine_with_solver_runs(table, truths):
     (iop, e0), m = truths[3]
-    est = identify(table, _meas(m, MEASURABLE), thickness=0.5)
+    est = identify(table, _meas(m, RAW), thickness=0.5)
     ref = refine(table, est, max_runs=4)
     assert ref.refined["solver_runs"] == 4
     # the refined point is at least as good as the grid estimate, as judged by the solver itself
@@ -183,6 +184,11 @@ def test_http_identify_on_a_finished_job(id_sweep, truths, tmp_path):
                                           "measurement": {"P1": {"value": 60.0}}})
             assert r.status_code == 422 and r.json()["detail"][0]["field"] == "P1", r.text
             assert "outside what the sweep covers" in r.json()["detail"][0]["msg"]
+            # a calibrated reading without the job's calibration: 422 naming it and the command
+            r = c.post("/identify", json={**body, "job_id": job, "measurement": {
+                "IOPg_cal": {"value": 16.0}, "CH_cal": {"value": 5.0}}})
+            assert r.status_code == 422 and r.json()["detail"][0]["field"] == "IOPg_cal", r.text
+            assert "airpuff calibrate" in r.json()["detail"][0]["msg"]
             r = c.post("/identify", json={**body, "job_id": job, "refine": True})
             assert r.status_code == 422 and r.json()["detail"][0]["field"] == "refine"
             r = c.post("/identify", json={**body, "job_id": job, "measurement": {}})
@@ -197,3 +203,61 @@ def test_http_identify_on_a_finished_job(id_sweep, truths, tmp_path):
             c.delete(f"/sweeps/{other}")
     finally:
         srv.stop()
+
+
+def test_calibrated_measurement_needs_the_sweeps_calibration(table):
+    """The paper's model has no shipped calibration at coarse resolution: a calibrated reading
+    is refused with the reason and the command that makes one, and the scales do not mix."""
+    with pytest.raises(IdentifyError, match="airpuff calibrate") as err:
+        identify(table, {"IOPg_cal": 16.0, "CH_cal": 5.0}, thickness=0.5)
+    assert err.value.field == "IOPg_cal"
+    with pytest.raises(IdentifyError, match="two scales") as err:
+        identify(table, {"P1": 20.0, "P2_cal": 15.0}, thickness=0.5)
+    with pytest.raises(IdentifyError, match="at most two") as err:
+        identify(table, {"P1_cal": 20.0, "P2_cal": 15.0, "CH_cal": 5.0}, thickness=0.5)
+    assert err.value.field == "CH_cal"
+
+
+def test_calibrated_identification_is_the_raw_one_mapped(id_sweep, truths, tmp_path,
+                                                        monkeypatch):
+    """With a calibration P_cal = a + b P (fitted by the real fitting code on the sweep's own
+    reference slice, E0 0.5 MPa), chi^2 of (P1_cal, P2_cal) with sigmas b s equals chi^2 of
+    (P1, P2) with sigmas s term by term (the interpolation errors scale by b too), so the
+    estimate and its region are the raw one's; and IOPg_cal, CH_cal (an ORA's printout)
+    identify IOP within the raw tolerance."""
+    from airpuff_core.calibration import FORMAT, apply_coefficients, fit_coefficients
+    from airpuff_core.dataset import write_netcdf
+    from airpuff_core.provenance import model_version
+    from sweep.combine import combine
+
+    path, data = id_sweep
+    raw = SweepTable.from_netcdf(path)
+    e = list(raw.E0).index(0.5)
+    coef = fit_coefficients(raw.IOP, raw.metrics["P1"][e, :, 0, 0], raw.metrics["P2"][e, :, 0, 0])
+    spec = SweepSpec.from_dict(GRID)
+    options = {k: v for k, v in spec.point(0).to_dict().items() if k != "IOP"}
+    cal_dir = tmp_path / "calibrations"
+    cal_dir.mkdir()
+    (cal_dir / "paper_paper_coarse_test.json").write_text(json.dumps({
+        "format": FORMAT, "instrument": "paper", "model_version": model_version(),
+        "resolution": "coarse", "model": "paper", "run_options": options, "coefficients": coef}))
+    monkeypatch.setenv("AIRPUFF_CALIBRATION_DIR", str(cal_dir))
+    cal_table = SweepTable.from_netcdf(write_netcdf(combine(spec, data / "points"),
+                                                    tmp_path / "sweep.nc"))
+    b = coef["pressure_slope"]
+    (iop, e0), m = truths[1]
+    c = apply_coefficients(coef, m["P1"], m["P2"])
+    by_raw = identify(cal_table, {"P1": (m["P1"], 0.5), "P2": (m["P2"], 0.5)}, thickness=0.5)
+    by_cal = identify(cal_table, {"P1_cal": (c["P1_cal"], 0.5 * b),
+                                  "P2_cal": (c["P2_cal"], 0.5 * b)}, thickness=0.5)
+    assert by_cal.IOP == by_raw.IOP and by_cal.E0 == by_raw.E0
+    assert by_cal.IOP_interval == by_raw.IOP_interval
+    assert by_cal.chi2_min == pytest.approx(by_raw.chi2_min, rel=1e-9, abs=1e-12)
+    assert by_cal.to_dict()["scale"].startswith("calibrated")
+    printout = identify(cal_table, {"IOPg_cal": c["IOPg_cal"], "CH_cal": c["CH_cal"]},
+                        thickness=0.5)
+    assert abs(printout.IOP - iop) <= IOP_TOL, printout.to_dict()
+    proc = airpuff("identify", "--sweep", str(tmp_path / "sweep.nc"), "--thickness", "0.5",
+                   "--IOPg-cal", f"{c['IOPg_cal']:.4f}", "--CH-cal", f"{c['CH_cal']:.4f}")
+    assert proc.returncode == 0, proc.stderr
+    assert "scale: calibrated" in proc.stdout
