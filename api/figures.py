@@ -1,7 +1,9 @@
 """The figures of a job's page, drawn by the server as PNG from the stored results.
 
 - ``ora-<metric>``: an ORA metric (P1, P2, CH, IOPg, IOPcc) against IOP, one line per E0, from
-  the job's point records in the database (``api.jobs.point_records``);
+  the job's point records in the database (``api.jobs.point_records``); when the points have a
+  calibration, also the calibrated IOPg_cal (with the line where it equals the true IOP) and
+  CH_cal;
 - ``heatmap-<metric>``: DA and CH over the (IOP, E0) grid, when it has at least two values of each;
 - ``history-<index>``: apex displacement and jet pressure against time of one point, from the
   point's own netCDF file.
@@ -33,15 +35,19 @@ from typing import Any
 import numpy as np
 
 from airpuff_core.atomic import TEMP_SUFFIX, atomic_write
+from airpuff_core.calibration import CALIBRATED
 from airpuff_core.result import METRICS
 
 from .settings import Settings
 from .status import ENDED_JOB_STATUSES
 
 ORA_METRICS = ("P1", "P2", "CH", "IOPg", "IOPcc")
+# Drawn beside the raw ones when the job's points have a calibration (docs/calibration.md).
+CALIBRATED_METRICS = ("IOPg_cal", "CH_cal")
 HEATMAP_METRICS = ("DA", "CH")
 NAME_RE = re.compile(r"^(ora-(%s)|heatmap-(%s)|history-\d{1,9})$"
-                     % ("|".join(ORA_METRICS), "|".join(HEATMAP_METRICS)))
+                     % ("|".join(ORA_METRICS + CALIBRATED_METRICS), "|".join(HEATMAP_METRICS)))
+_DESCRIBED = {**METRICS, **CALIBRATED}  # name -> (unit, long name)
 HISTORY_TIMEOUT_S = 120.0
 UNREADABLE_EXIT = 3  # exit code of ``python -m api.figures`` when the point file cannot be read
 DPI = 100
@@ -85,6 +91,8 @@ def available(records: list[dict[str, Any]]) -> list[str]:
     if not any(r["status"] == "ok" for r in records):
         return []
     names = [f"ora-{m}" for m in ORA_METRICS]
+    names += [f"ora-{m}" for m in CALIBRATED_METRICS
+              if any(r.get(m) is not None and math.isfinite(r[m]) for r in records)]
     _, e0, iop = _sliced(records)
     if len(e0) >= 2 and len(iop) >= 2:
         names += [f"heatmap-{m}" for m in HEATMAP_METRICS]
@@ -99,7 +107,7 @@ def history_point(records: list[dict[str, Any]], index: int | None) -> dict[str,
 
 
 def _label(name: str) -> str:
-    return f"{name} [{METRICS[name][0]}]"
+    return f"{name} [{_DESCRIBED[name][0]}]"
 
 
 def draw(name: str, records: list[dict[str, Any]]) -> bytes:
@@ -122,10 +130,12 @@ def draw(name: str, records: list[dict[str, Any]]) -> bytes:
                     failed[e0.index(r["E0"]), iop.index(r["IOP"])] = True
             draw_metric_vs_iop(ax, iop, {v: values[i] for i, v in enumerate(e0)},
                                {v: failed[i] for i, v in enumerate(e0)}, _label(metric))
+            if metric == "IOPg_cal":  # where a calibrated reading equals the eye's true IOP
+                ax.plot(iop, iop, "--", color="grey", lw=1, label="= true IOP")
             ax.legend(fontsize="x-small")
         else:
             draw_heatmap(fig, ax, iop, e0, values, _label(metric))
-        ax.set_title(textwrap.fill(f"{metric}: {METRICS[metric][1]}", 52)
+        ax.set_title(textwrap.fill(f"{metric}: {_DESCRIBED[metric][1]}", 52)
                      + f"\nthickness {thickness:g} mm, pmax {pmax:g} kPa", fontsize=8)
         return _png(fig)
 

@@ -86,6 +86,17 @@ def test_http_corrections_on_a_finished_job(coarse_sweep, tmp_path):
             n_ok = sum(p["status"] == "ok" for p in points)
             assert "IOPg_cal [mmHg]" in page
             assert f"{n_ok} points calibrated with <code>paper_test.json" in page
+            # the calibrated figures beside the raw ones, and a calibrated identification
+            for name in ("ora-IOPg_cal", "ora-CH_cal"):
+                assert f"/figures/{name}.png" in page
+                r = c.get(f"/jobs/{job}/figures/{name}.png")
+                assert r.status_code == 200 and r.content.startswith(b"\x89PNG"), name
+            ok = next(p for p in points if p["IOPg_cal"] is not None and p["thickness"] == 0.45)
+            r = c.post("/identify", json={"job_id": job, "thickness": 0.45, "measurement": {
+                "IOPg_cal": {"value": ok["IOPg_cal"]}, "CH_cal": {"value": ok["CH_cal"]}}})
+            assert r.status_code == 200, r.text
+            assert r.json()["scale"].startswith("calibrated")
+            assert abs(r.json()["IOP"] - ok["IOP"]) <= 1.0, r.json()
             assert c.post(f"/sweeps/{'0' * 32}/corrections",
                           json={"instrument": "ora"}).status_code == 404
             r = c.post(f"/sweeps/{job}/corrections", json={"instrument": "goldmann"})
