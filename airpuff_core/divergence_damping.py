@@ -21,7 +21,8 @@ D is assembled as a sparse matrix from the pair weights of the solver's own deri
 at each operator build, and used until the next (as the hyperviscosity's Brookshaw lists are).
 The term is stiff (its rate grows like c / h); it is integrated over the fluid step by
 forward-Euler sub-steps within HV_SAFETY / HV_MARGIN of its spectral radius, which a power
-iteration gives at each build.
+iteration gives at each build.  The products with D and D^T are compiled
+(``kernels/divergence_damping.py``, the same sums as ``scipy.sparse``'s).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
+from .kernels.divergence_damping import damping_increments, damping_rate
 from .kernels.nodes import AXIS_EPS
 
 SAFETY = 1.0  # forward-Euler sub-steps of at most SAFETY / spectral radius (limit 2)
@@ -49,6 +51,9 @@ class DivergenceDamping:
         self.weight = None
         self.radius_unit = 0.0  # spectral radius of W^-1 D_f^T diag(h) W D_f [1/(m s) per c]
         self.built_for = -1
+        n = h.shape[0]
+        self._work = np.empty((4, n))  # scratch of the kernels
+        self._scatter = np.empty(2 * n)
 
     def assemble(self, ops, x, weight):
         """D from the pair weights of the MFPM operator ``ops`` kept at its last build (at the
@@ -64,8 +69,9 @@ class DivergenceDamping:
         if weights.shape[0] != 5:
             raise ValueError("the divergence damping needs the kept operator (strain_limit > 0)")
         rows = np.repeat(np.arange(n), count)
-        pairs = (np.concatenate([np.arange(start[i], start[i] + count[i]) for i in range(n)])
-                 if n else np.zeros(0, np.int64))
+        # node i's pairs start[i] ... start[i] + count[i] - 1, in node order
+        first = np.cumsum(count) - count  # node i's first entry in ``pairs``
+        pairs = np.arange(rows.shape[0]) + (start[:n] - first)[rows]
         cols = nbr[pairs].astype(np.int64)
         on_axis = x < AXIS_EPS
         factor = np.where(on_axis, 2.0, 1.0)[rows]
@@ -78,17 +84,14 @@ class DivergenceDamping:
             (np.concatenate([wx * sign[pairs], diag_x, wy, diag_y]),
              (np.concatenate([rows, i_all, rows, i_all]),
               np.concatenate([cols, i_all, n + cols, n + i_all]))), shape=(n, 2 * n))
-        self.DT = self.D.T.tocsr()
         self.weight = weight.copy()
         self.radius_unit = self._spectral_radius()
 
     def rate(self, vx, vy, scale, out_x, out_y):
         """out = -W_f^-1 D_f^T S W D v [m/s^2] with S = ``scale`` (gamma_div c h per node)."""
-        n = vx.shape[0]
-        r = scale * self.weight * (self.D @ np.concatenate([vx, vy]))
-        g = self.DT @ r
-        out_x[:] = np.where(self.free_x, -g[:n] / self.weight, 0.0)
-        out_y[:] = np.where(self.free_y, -g[n:] / self.weight, 0.0)
+        D = self.D
+        damping_rate(D.indptr, D.indices, D.data, vx, vy, scale, self.weight, self.free_x,
+                     self.free_y, self._scatter, out_x, out_y)
 
     def _spectral_radius(self):
         n = self.h.shape[0]
@@ -110,13 +113,8 @@ class DivergenceDamping:
         sub-steps (module docstring), into out_x, out_y."""
         scale = self.gamma_div * c * self.h
         steps = max(1, math.ceil(dt * self.gamma_div * c * self.radius_unit / SAFETY))
-        tau = dt / steps
-        ux, uy = vx.copy(), vy.copy()
-        rx, ry = np.empty_like(vx), np.empty_like(vy)
-        for _ in range(steps):
-            self.rate(ux, uy, scale, rx, ry)
-            ux += tau * rx
-            uy += tau * ry
-        out_x[:] = ux - vx
-        out_y[:] = uy - vy
+        D = self.D
+        damping_increments(D.indptr, D.indices, D.data, vx, vy, scale, self.weight, self.free_x,
+                           self.free_y, dt / steps, steps, self._work, self._scatter, out_x,
+                           out_y)
         return steps

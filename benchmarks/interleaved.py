@@ -1,7 +1,7 @@
 """Before/after timings in one process, alternating: another commit's solver against this tree's.
 
     python -m benchmarks.interleaved REF run [coarse|paper|fine] [--model paper|clinical]
-                                      [--repeat N] [--threads N]
+                                      [--repeat N] [--threads N] [--set NAME=VALUE ...]
     python -m benchmarks.interleaved REF mfpm [--rounds N] [--threads N]
 
 REF is a git revision (``main``, a commit); its ``airpuff_core`` is exported with ``git archive``
@@ -15,7 +15,9 @@ is bracketed by the yardstick (``benchmarks/yardstick.py``, a fixed loop of abou
 wall time divided by the mean of the two yardsticks around it is printed too: a figure of the
 code that the machine's speed of the moment cancels out of (largely), comparable across days.
 ``--threads`` (default 1) sets the threads of this tree's kernels (``airpuff_core/threads.py``);
-a revision from before them runs on one thread whatever it says.
+a revision from before them runs on one thread whatever it says.  ``--set NAME=VALUE``
+(repeatable) sets a numeric run parameter of both codes' runs, e.g. ``--set
+hyperviscosity_divergence=0.5``.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from airpuff_core.params import PARAMETERS
 from benchmarks.yardstick import yardstick_data, yardstick_seconds
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -56,9 +59,11 @@ def import_revision(ref: str, into: Path):
     return module
 
 
-def compare_runs(old, resolution, repeat, threads=1, model="paper"):
-    """``repeat`` pairs of runs (old, new) of the ``model`` preset at ``resolution``; returns the
-    figures printed: per code the wall and CPU times [s] and the yardstick ratios."""
+def compare_runs(old, resolution, repeat, threads=1, model="paper", settings=None):
+    """``repeat`` pairs of runs (old, new) of the ``model`` preset at ``resolution`` with the
+    run parameters ``settings`` (name -> value); returns the figures printed: per code the wall
+    and CPU times [s] and the yardstick ratios."""
+    settings = settings or {}
     import airpuff_core as new
     walls = {"old": [], "new": []}
     cpus = {"old": [], "new": []}
@@ -66,14 +71,15 @@ def compare_runs(old, resolution, repeat, threads=1, model="paper"):
     # this tree's runs on ``threads`` threads; an older revision's on one, whatever it says
     options = {old: {}, new: {"threads": threads}}
     for pkg in (old, new):
-        pkg.simulate(pkg.RunParams(resolution=resolution, model=model, t_end=0.05),
-                     **options[pkg])
+        pkg.simulate(pkg.RunParams(resolution=resolution, model=model, **settings,
+                                   t_end=0.05), **options[pkg])
     data = yardstick_data()
     stick = yardstick_seconds(data)
     for _ in range(repeat):
         for name, pkg in (("old", old), ("new", new)):
             t0, c0 = time.perf_counter(), time.process_time()
-            r = pkg.simulate(pkg.RunParams(resolution=resolution, model=model), **options[pkg])
+            r = pkg.simulate(pkg.RunParams(resolution=resolution, model=model, **settings),
+                             **options[pkg])
             walls[name].append(time.perf_counter() - t0)
             cpus[name].append(time.process_time() - c0)
             stick_before, stick = stick, yardstick_seconds(data)
@@ -123,15 +129,17 @@ def compare_mfpm(old, rounds, repeats=200):
           f"{statistics.median(ratios):.3f}")
 
 
-def interleaved_runs(ref, resolution="paper", repeat=2, threads=1, model="paper"):
+def interleaved_runs(ref, resolution="paper", repeat=2, threads=1, model="paper",
+                     settings=None):
     """``compare_runs`` of git revision ``ref`` against this tree (on ``threads`` threads)."""
     from airpuff_core.threads import solver_threads
 
     with tempfile.TemporaryDirectory() as tmp, solver_threads(threads):
         old = import_revision(ref, Path(tmp))
         print(f"interleaved runs: old = {ref}, new = this tree; {model} preset, {resolution} "
-              f"resolution, {threads} thread(s)", flush=True)
-        return compare_runs(old, resolution, repeat, threads, model)
+              f"resolution, {threads} thread(s)"
+              + "".join(f", {k} = {v:g}" for k, v in (settings or {}).items()), flush=True)
+        return compare_runs(old, resolution, repeat, threads, model, settings)
 
 
 def main(argv=None):
@@ -145,9 +153,23 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=21, help="MFPM rounds of each (default 21)")
     ap.add_argument("--threads", type=int, default=1,
                     help="threads of this tree's kernels (default 1)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a numeric run parameter of both codes' runs (repeatable)")
     args = ap.parse_args(argv)
+    settings = {}
+    for item in args.set:
+        name, sep, value = item.partition("=")
+        try:
+            settings[name.strip()] = float(value)
+        except ValueError:
+            ap.error(f"--set {item}: expected NAME=VALUE with a number")
+        if not sep or not name.strip():
+            ap.error(f"--set {item}: expected NAME=VALUE with a number")
+        if name.strip() not in PARAMETERS:
+            ap.error(f"--set {item}: no run parameter {name.strip()!r}")
     if args.what == "run":
-        interleaved_runs(args.ref, args.resolution, args.repeat, args.threads, args.model)
+        interleaved_runs(args.ref, args.resolution, args.repeat, args.threads, args.model,
+                         settings)
         return
     from airpuff_core.threads import solver_threads
 
