@@ -460,14 +460,22 @@ def mapped_derivatives(x, y, nodes, fields, parity, start, nbr, sign, count, wei
     their order, so it is the same for any chunks or threads.  Returns 0, or i+1 for the first
     node (in the order of ``nodes``) whose F is not invertible with a positive determinant."""
     n_chunks = max(1, min(n_chunks, nodes.shape[0]))
+    gradient_only = out.shape[2] == 2
     if n_chunks == 1:
+        if gradient_only:
+            return _mapped_gradient_nodes(nodes, x, y, fields, parity, start, nbr, sign, count,
+                                          weights, out, strain)
         return _mapped_nodes(nodes, x, y, fields, parity, start, nbr, sign, count, weights,
                              out, strain)
     status = np.zeros(n_chunks, np.int64)
     for c in prange(n_chunks):
         lo, hi = chunk_bounds(nodes.shape[0], n_chunks, c)
-        status[c] = _mapped_nodes(nodes[lo:hi], x, y, fields, parity, start, nbr, sign, count,
-                                  weights, out, strain)
+        if gradient_only:
+            status[c] = _mapped_gradient_nodes(nodes[lo:hi], x, y, fields, parity, start, nbr,
+                                               sign, count, weights, out, strain)
+        else:
+            status[c] = _mapped_nodes(nodes[lo:hi], x, y, fields, parity, start, nbr, sign,
+                                      count, weights, out, strain)
     for c in range(n_chunks):
         if status[c]:
             return status[c]
@@ -550,6 +558,59 @@ def _mapped_nodes(nodes, x, y, fields, parity, start, nbr, sign, count, weights,
             if f1 != f0:
                 _chain_rule(out, f1, i, n_rows, g00, g01, g10, g11, xxx, xxy, xyy, yxx, yxy,
                             yyy, k0, k1, k2, k3, k4)
+    return status
+
+
+@njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
+def _mapped_gradient_nodes(nodes, x, y, fields, parity, start, nbr, sign, count, weights, out,
+                           strain):
+    """``_mapped_nodes`` when only the gradients are asked for (``out`` of two columns): one
+    pass over a node's pairs per field forms F and the first two rows of D_X of the field, the
+    sums of ``_mapped_nodes`` that the gradient and the strain need, in the same order (so the
+    same bits), without the second derivatives' (6 sums per pair for one field instead of
+    20)."""
+    w0, w1 = weights[0], weights[1]
+    status = 0
+    for f in range(fields.shape[0]):
+        odd = 1.0 if parity[f] < 0.0 else 0.0
+        for i in nodes:
+            p0 = start[i]
+            p1 = p0 + count[i]
+            xi = x[i]
+            yi = y[i]
+            u0 = fields[f, i]
+            a = b = c = d = 0.0
+            e0 = e1 = 0.0
+            for p in range(p0, p1):
+                j = nbr[p]
+                sp = sign[p]
+                dx = sp * x[j] - xi
+                dy = y[j] - yi
+                d0 = (1.0 + odd * (sp - 1.0)) * fields[f, j] - u0
+                q0 = w0[p]
+                q1 = w1[p]
+                a += q0 * dx
+                b += q1 * dx
+                c += q0 * dy
+                d += q1 * dy
+                e0 += q0 * d0
+                e1 += q1 * d0
+            strain[i] = max(abs(a - 1.0), abs(b), abs(c), abs(d - 1.0))
+            det = a * d - b * c
+            if not det > 0.0:  # also NaN
+                if status == 0:
+                    status = i + 1
+                continue
+            inv_det = 1.0 / det
+            g00 = d * inv_det
+            g01 = -b * inv_det
+            g10 = -c * inv_det
+            g11 = a * inv_det
+            # the gradient rows of ``_chain_rule`` with its row count read from ``out`` as there
+            # (a constant 2 lets the compiler fuse the multiply-adds otherwise, and the last
+            # bits of g_y differ from the full evaluation's)
+            _chain_rule(out, f, i, out.shape[2], g00, g01, g10, g11, 0.0, 0.0, 0.0, 0.0, 0.0,
+                        0.0, e0, e1, 0.0, 0.0, 0.0)
     return status
 
 

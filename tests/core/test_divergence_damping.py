@@ -83,6 +83,22 @@ def test_self_adjoint_and_negative_semi_definite_on_the_free_components(model):
     assert not damping.free_x[kind == AXIS].any()
 
 
+def test_the_compiled_rate_is_scipys_products_bit_for_bit(model):
+    """``rate`` (kernels/divergence_damping.py) forms -W_f^-1 D^T S W D v with the sums of
+    ``scipy.sparse``'s products by D and by its transpose, bit for bit."""
+    damping = model.fluid.divergence_damping
+    n = model.x.size
+    rng = np.random.default_rng(2)
+    transpose = damping.D.T.tocsr()
+    out_x, out_y = np.empty(n), np.empty(n)
+    for _ in range(3):
+        vx, vy, scale = rng.standard_normal(n), rng.standard_normal(n), rng.random(n)
+        g = transpose @ (scale * damping.weight * (damping.D @ np.concatenate([vx, vy])))
+        damping.rate(vx, vy, scale, out_x, out_y)
+        assert np.array_equal(out_x, np.where(damping.free_x, -g[:n] / damping.weight, 0.0))
+        assert np.array_equal(out_y, np.where(damping.free_y, -g[n:] / damping.weight, 0.0))
+
+
 def test_rest_stays_at_rest():
     params = RunParams(model="clinical", pmax=0.0, t_end=2.0, hyperviscosity_speed=15.0,
                        hyperviscosity_divergence=0.5)
