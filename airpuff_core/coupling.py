@@ -13,8 +13,9 @@ t^{n+1} = t^n + dt:
   (b) its position and velocity imposed on the fluid's interface nodes (Dirichlet), the globe's
       walls moved for it (``globe/``: rigid ones do nothing);
   (c) the fluid's density and interface pressure at t^{n+1}, the cornea's load (Neumann);
-- then the converged state becomes the state at t^{n+1} (``commit``), and a pulse that watches
-  the eye (the ORA's) is told its apex curvature.
+- then the converged state becomes the state at t^{n+1} (``commit``), the instrument's
+  applanation signal is read from it (``readout.py``; the ORA's and the Corvis ST's), and a
+  pulse that watches the eye (the ORA's) is told that signal.
 
 The observers of a run (``solver.py``: the energy budget, the blow-up checks, the recorder) are
 called by ``step`` after the coupling, with the state at t^n and the trial state at t^{n+1}
@@ -36,6 +37,7 @@ from .globe import globe_for_run
 from .globe.motion import eye_for_run, pulse_force
 from .loads import pulse_for_run
 from .params import RunParams
+from .readout import readout_for_run
 from .step_control import StepControl
 
 P_REF = 1.0  # Pa: floor of the normalisation of the coupling residual (meaningful at rest)
@@ -70,8 +72,11 @@ class CoupledModel:
         # fluid pressure on the cornea [Pa], its load at t^n
         self.p_interface = np.empty(self.cornea_nodes.shape[0])
         self.fluid.interface_pressure(self.control.c, self.p_interface)
+        # the instrument's applanation signal of the current state (NaN for the paper's jet)
+        self.readout = readout_for_run(params.instrument, self.X)
+        self.applanation_signal = self._read_signal()
         if self.jet.watches_applanation:
-            self.jet.observe(self.t, self.apex_curvature())
+            self.jet.observe(self.t, self.applanation_signal)
         N = self.X.shape[0]
         self._cornea_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_interface_n = np.empty(N)  # interface pressure at t^n with this step's c [Pa]
@@ -165,7 +170,7 @@ class CoupledModel:
     def commit(self, dt):
         """The coupled state becomes the state at t^{n+1} (buffers are swapped, not copied); the
         globe, the interface pressure and the speeds that set the next sound speed follow, and
-        a pulse that watches the eye sees the new apex curvature."""
+        the instrument's applanation signal is read, and a pulse that watches the eye sees it."""
         self.tissue.commit()
         self.cornea.commit()
         n_fit = self.n_apex_fit
@@ -181,8 +186,14 @@ class CoupledModel:
         self.control.end_step(self.fluid.max_speed())
         self.fluid.interface_pressure(c, self.p_interface)
         self.eye.advance(dt, self.pulse_force)
+        self.applanation_signal = self._read_signal()
         if self.jet.watches_applanation:
-            self.jet.observe(self.t, self.apex_curvature())
+            self.jet.observe(self.t, self.applanation_signal)
+
+    def _read_signal(self):
+        """The instrument's applanation signal of the current state (``readout.py``), NaN
+        without one."""
+        return self.readout(self.X, self.Y) if self.readout is not None else float("nan")
 
     @property
     def trial_cornea(self):

@@ -1,9 +1,13 @@
 """ORA and Corvis-style metrics from the histories of one run (user units: ms, mmHg, mm, m/s).
 
-Applanation = a sign change of the apical curvature: convex -> concave is the first applanation
-A1 (the first such crossing), concave -> convex the second, A2 (the last such crossing).  The
-instants are interpolated linearly between solver steps, and P1, P2 are the air-jet pressure at
-the apex at those instants (eq. 11 evaluated exactly).  Then, as in the paper (section 4):
+The paper's read-out (the paper's jet): applanation = a sign change of the apical curvature:
+convex -> concave is the first applanation A1 (the first such crossing), concave -> convex the
+second, A2 (the last such crossing), the instants interpolated linearly between solver steps.
+The instruments' read-out (``instrument = ora | corvis``): A1 and A2 are the highest peaks of
+the instrument's applanation signal before and after the highest concavity (``readout.py``: the
+ORA's reflection signal, the Corvis ST's flatness over the applanation length), refined by a
+parabola through the top step and its neighbours.  P1, P2 are the air pulse's pressure at the
+apex at those instants (evaluated exactly).  Then, as in the paper (section 4):
 
     CH = P1 - P2,   IOPg = 0.5 (P1 + P2),   IOPcc = P1 - 0.43 P2
 
@@ -31,6 +35,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from .readout import signal_applanations
 
 
 def _crossings(t, f, downward):
@@ -80,7 +86,7 @@ def applanation_readings(p1, p2) -> dict:
 
 
 def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms,
-                    step_budget=None, step_velocity=None):
+                    step_budget=None, step_velocity=None, step_signal=None):
     """Return (metrics, notes, extra diagnostics).  ``step_budget`` (steps, 4): the apex force
     budget at every step [mmHg] (``CoupledModel.apex_budget``: the jet's mean over the apex
     nodes, fluid pressure, equilibrium resistance, viscoelastic overstress, inertia),
@@ -89,7 +95,9 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
     P1_profile = P1 minus the jet's mean over the apex nodes (its spatial decay) and P1_residual
     what the discrete balance leaves (likewise P2); CH_<part> = P1_<part> - P2_<part>.
     ``step_velocity``: the apex's inward velocity as the instrument sees it at every step [m/s]
-    (v_A1, v_A2)."""
+    (v_A1, v_A2).  ``step_signal``: the instrument's applanation signal at every step
+    (``readout.py``), whose peaks are then the applanations; None: the apex curvature's sign
+    changes."""
     nan = math.nan
     m = {k: nan for k in ("P1", "P2", "CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora", "t_A1", "t_A2",
                           "t_HC", "hc_delay", "DA", "deflection_amplitude",
@@ -128,28 +136,27 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
     up = _crossings(step_t, step_kappa, False)
     extra["applanation_crossings_down"] = len(down)
     extra["applanation_crossings_up"] = len(up)
-    if down:
-        tA1, i, s = down[0]
-        m["t_A1"] = tA1
-        m["P1"] = jet_apex(tA1)
-        extra["fluid_pressure_apex_at_A1"] = step_fluid_p[i] + s * (step_fluid_p[i + 1] - step_fluid_p[i])
-        m["v_A1"] = _at(step_velocity, i, s)
-        _split(m, "P1", step_budget, i, s)
-        up = [u for u in up if u[0] > tA1]
-        if up:
-            tA2, i, s = up[-1]
-            m["t_A2"] = tA2
-            m["P2"] = jet_apex(tA2)
-            extra["fluid_pressure_apex_at_A2"] = (step_fluid_p[i]
-                                                  + s * (step_fluid_p[i + 1] - step_fluid_p[i]))
-            m["v_A2"] = _at(step_velocity, i, s)
-            _split(m, "P2", step_budget, i, s)
+    if step_signal is not None:
+        a1, a2 = (_step_position(step_t, ta) for ta in
+                  signal_applanations(step_t, step_signal, m["t_HC"]))
+        never = "the instrument's applanation signal had no peak before the highest concavity"
+        missing = "the instrument's applanation signal had no peak after the highest concavity"
+    else:
+        a1 = down[0] if down else None
+        up = [u for u in up if a1 is not None and u[0] > a1[0]]
+        a2 = up[-1] if up else None
+        never = "the cornea never applanated (apex curvature stayed convex)"
+        missing = "the cornea did not return to convex before the end of the run"
+    if a1 is not None:
+        _applanation(m, extra, "1", a1, jet_apex, step_fluid_p, step_velocity, step_budget)
+        if a2 is not None:
+            _applanation(m, extra, "2", a2, jet_apex, step_fluid_p, step_velocity, step_budget)
         else:
             for k in ("t_A2", "P2", "v_A2"):
-                notes[k] = "the cornea did not return to convex before the end of the run"
+                notes[k] = missing
     else:
         for k in ("t_A1", "P1", "t_A2", "P2", "v_A1", "v_A2"):
-            notes[k] = "the cornea never applanated (apex curvature stayed convex)"
+            notes[k] = never
     if math.isfinite(m["P1"]) and math.isfinite(m["P2"]):
         m.update(applanation_readings(m["P1"], m["P2"]))
         for part in ("profile",) + BUDGET_PARTS + ("residual",):
@@ -158,6 +165,24 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         for k in ("CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora"):
             notes[k] = "needs both applanations"
     return m, notes, extra
+
+
+def _step_position(step_t, t_ms):
+    """(t_ms, i, s) with t_ms between steps i and i + 1 at the fraction s; None for NaN."""
+    if not math.isfinite(t_ms):
+        return None
+    i = min(max(int(np.searchsorted(step_t, t_ms)) - 1, 0), len(step_t) - 2)
+    return t_ms, i, (t_ms - step_t[i]) / (step_t[i + 1] - step_t[i])
+
+
+def _applanation(m, extra, n, at, jet_apex, step_fluid_p, step_velocity, step_budget):
+    """The metrics of applanation n ("1" or "2") at ``at`` = (t [ms], step i, fraction s)."""
+    t_a, i, s = at
+    m[f"t_A{n}"] = t_a
+    m[f"P{n}"] = jet_apex(t_a)
+    extra[f"fluid_pressure_apex_at_A{n}"] = _at(step_fluid_p, i, s)
+    m[f"v_A{n}"] = _at(step_velocity, i, s)
+    _split(m, f"P{n}", step_budget, i, s)
 
 
 def _at(step_series, i, s):

@@ -134,8 +134,8 @@ def _p(name, unit, default, low, high, desc, low_inc=False, high_inc=True, si=No
 # The ORA's pulse (docs/model.md section 6): no published rise rate or switch-off delay was
 # found; both are calibrated on the ORA's applanation times (TimeIn, TimeOut of real records)
 # at the normal eye.
-ORA_RISE_RATE = 0.41  # kPa/ms
-ORA_DELAY = 5.0  # ms
+ORA_RISE_RATE = 0.459  # kPa/ms
+ORA_DELAY = 4.91  # ms
 
 # name -> spec.  Ranges are what the model is meant for (clinical and numerical sanity), not what
 # merely avoids a crash; they are documented in the API schema and in docs/model.md.

@@ -5,8 +5,9 @@
 
 - the histories of ``result.HISTORIES`` on the grid 0, output_interval, ..., t_end, linearly
   interpolated between solver steps (the air pulse, analytic, is evaluated on the grid exactly);
-- the apex curvature and fluid pressure at every solver step, from which ``metrics.py`` finds the
-  applanations (sign changes of the curvature) by interpolation between steps;
+- the apex curvature, the instrument's applanation signal (``readout.py``) and the fluid
+  pressure at every solver step, from which ``metrics.py`` finds the applanations (sign changes
+  of the curvature, or the signal's peaks for the ORA and the Corvis ST) between steps;
 - the snapshots of ``result.SNAPSHOT_LABELS``: the initial state, the first step after each
   applanation and after the jet peak, the state at the output time of the largest displacement,
   and the end;
@@ -44,6 +45,10 @@ def probe(model: CoupledModel, budget: EnergyBudget, full: bool = True) -> dict[
         "eye_velocity": model.eye.velocity,
         "apex_velocity": -model.VY[0],
         "apex_curvature": model.apex_curvature() * 1e-3,
+        "ora_reflection_signal": (model.applanation_signal if model.params.instrument == "ora"
+                                  else math.nan),
+        "corvis_flat_departure": (math.sqrt(-model.applanation_signal)
+                                  if model.params.instrument == "corvis" else math.nan),
         "fluid_pressure_apex": model.p_interface[0] / MMHG_PA,
         "chamber_volume": model.chamber_volume() * 1e9,
         "wall_volume_change": model.globe.volume_change() * 1e9,
@@ -96,6 +101,7 @@ class Recorder:
         self.step_t = [0.0]  # ms
         self.step_kappa = [first["apex_curvature"]]
         self.step_fluid_p = [first["fluid_pressure_apex"]]
+        self.step_signal = [model.applanation_signal]  # the instrument's (readout.py)
         # the apex's inward velocity as the instrument sees it (metrics: v_A1, v_A2)
         self.step_velocity = [model.apex_deformation_velocity()]
         self.step_budget = [apex_budget_mmhg(model)]  # the apex force budget (metrics.py)
@@ -141,6 +147,7 @@ class Recorder:
         self.step_t.append(t * 1e3)
         self.step_kappa.append(cur["apex_curvature"])
         self.step_fluid_p.append(cur["fluid_pressure_apex"])
+        self.step_signal.append(model.applanation_signal)
         self.step_velocity.append(model.apex_deformation_velocity())
         self.step_budget.append(apex_budget_mmhg(model))
         self._take_event_snapshots(model)
@@ -190,7 +197,8 @@ class Recorder:
             self.out_t * 1e3, hist, np.array(self.step_t), np.array(self.step_kappa),
             np.array(self.step_fluid_p),
             lambda t_ms: model.jet.at_apex(t_ms * 1e-3) / MMHG_PA, model.jet.peak_time * 1e3,
-            np.array(self.step_budget), np.array(self.step_velocity))
+            np.array(self.step_budget), np.array(self.step_velocity),
+            np.array(self.step_signal) if model.readout is not None else None)
         diagnostics = self._diagnostics(model, wall_s)
         diagnostics.update(extra)
         # the output times as the run's netCDF stores them (``decodable_ms``), so that the result

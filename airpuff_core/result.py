@@ -87,6 +87,12 @@ HISTORIES: dict[str, tuple[str, str]] = {
     "peak_distance": ("mm", "distance between the two peaks (most anterior points) of the "
                       "cornea's mid-surface; NaN while the apex is the most anterior point"),
     "apex_curvature": ("1/mm", "apical curvature of the cornea, positive convex"),
+    "ora_reflection_signal": ("1", "the ORA's applanation signal: the fraction of the light "
+                              "reflected from the central zone that reaches its detector (1 for "
+                              "a flat zone; NaN with another instrument)"),
+    "corvis_flat_departure": ("mm", "the Corvis ST's applanation signal: the rms departure from "
+                              "flat of the central cornea over the applanation length (NaN with "
+                              "another instrument)"),
     "jet_pressure_apex": ("mmHg", "air-jet pressure at the apex"),
     "fluid_pressure_apex": ("mmHg", "fluid pressure at the apex"),
     "chamber_volume": ("mm^3", "volume of the anterior chamber"),

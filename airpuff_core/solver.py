@@ -26,27 +26,29 @@ PROGRESS_INTERVAL = 0.2  # s of wall time between calls of ``progress``
 
 
 def simulate(params: RunParams, progress=None, reuse: bool = True, threads=None,
-             strain_limit=None) -> RunResult:
+             strain_limit=None, observers=()) -> RunResult:
     """Run one coupled simulation and return its histories, snapshots and metrics.
 
     ``progress(t_ms, t_end_ms)`` is called now and then.  ``reuse`` and ``strain_limit``: see
     ``CoupledModel``.
+    ``observers``: more observers of the steps (studies), each built as ``observer(model)`` and
+    then called like the recorder (``committed(model, dt)``, and ``coupled(model, dt)``).
     ``threads``: how many threads the kernels use (``threads.py``; default Numba's setting, every
     core it sees unless changed); the result does not depend on it.  Raises SimulationError on blow-up, non-convergent
     coupling or an ill-conditioned operator (the message names the time), ParameterError on a
     bad ``threads`` or a run estimated above the step budget (``budget.check_step_budget``).
     """
     with solver_threads(threads):
-        return _simulate(params, progress, reuse, strain_limit)
+        return _simulate(params, progress, reuse, strain_limit, observers)
 
 
-def _simulate(params, progress, reuse, strain_limit):
+def _simulate(params, progress, reuse, strain_limit, extra_observers):
     check_step_budget(params)  # a run estimated above the budget never starts
     wall0 = _time.monotonic()
     model = CoupledModel(params, reuse, strain_limit)
     budget = EnergyBudget(model)
     recorder = Recorder(model, budget)
-    observers = (budget, BlowUpCheck(), recorder)
+    observers = (budget, BlowUpCheck(), recorder) + tuple(make(model) for make in extra_observers)
     t_end = model.si.t_end_s
     last_progress = _time.monotonic()
     if progress:

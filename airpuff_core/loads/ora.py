@@ -9,8 +9,9 @@ on the cornea is (SI)
     A(t) = max(0, r_rise t_off - r_fall (t - t_off))   for t >  t_off,
     t_off = t_A1 + delay,
 
-with t_A1 the first applanation detected in the run itself (the apex curvature turning from
-convex to concave between two committed steps, interpolated linearly as ``metrics.py`` does).
+with t_A1 the first applanation detected in the run itself: the first peak of the ORA's
+reflection signal of at least a tenth of a flat zone's (``readout.py``: ``PeakDetector`` over the
+committed steps, refined as ``metrics.py`` refines the read-out's peaks).
 The peak r_rise t_off depends on the eye: an eye that applanates later sees a higher peak.
 The detection uses the committed states only, so it is the same for any number of threads.
 """
@@ -23,7 +24,8 @@ import numpy as np
 
 from ..kernels.air_jet import RAMP, SWITCH_OFF
 from ..params import MMHG_PA
-from .pulse import AirPulse, first_crossing_time
+from ..readout import ORA_DETECTION_THRESHOLD, PeakDetector
+from .pulse import AirPulse
 
 
 class OraPulse(AirPulse):
@@ -39,7 +41,7 @@ class OraPulse(AirPulse):
                                      si.ora_rise_rate_Pa_per_s])
         self.delay = si.ora_delay_s
         self.detected_applanation = math.nan  # s, t_A1 as the instrument saw it
-        self._last = None  # (t [s], apex curvature [1/m]) of the last committed state
+        self._detector = PeakDetector(ORA_DETECTION_THRESHOLD)
         self.set_nodes(phi)
 
     @property
@@ -51,15 +53,15 @@ class OraPulse(AirPulse):
     def peak_time(self):
         return self.switch_off
 
-    def observe(self, t, kappa):
-        """Detect the first applanation between the last committed state and this one; the
-        pump is switched off ``delay`` after it, and no earlier than now (a delay shorter than
-        the step already passed: the pulse has risen until now)."""
-        last, self._last = self._last, (t, kappa)
-        if last is None or math.isfinite(self.switch_off):
+    def observe(self, t, signal):
+        """Detect the first applanation, the reflection signal's first peak, from the committed
+        states so far; the pump is switched off ``delay`` after it, and no earlier than now (a
+        delay shorter than the time since the peak already passed: the pulse has risen until
+        now)."""
+        if math.isfinite(self.switch_off):
             return
-        t_A1 = first_crossing_time(last[0], last[1], t, kappa)
-        if t_A1 is not None:
+        t_A1 = self._detector.add(t, signal)
+        if math.isfinite(t_A1):
             self.detected_applanation = t_A1
             self.kernel_args[SWITCH_OFF] = max(t_A1 + self.delay, t)
 

@@ -4,8 +4,9 @@ pressure on the cornea's nodes and at the apex, its peak time, and its online st
 The cornea kernels evaluate the pulse inside their sub-steps from ``kernel_args`` and ``space``
 (``kernels/air_jet.py``); the start at rest, the energy budget, the apex force budget and the
 recorder use the methods here.  A pulse that is switched off by what happens to the eye
-(``watches_applanation``) is told the apex curvature after every committed step
-(``CoupledModel.commit``) and sets its switch-off time in ``kernel_args`` itself.
+(``watches_applanation``) is told the instrument's applanation signal (``readout.py``) after
+every committed step (``CoupledModel.commit``) and sets its switch-off time in ``kernel_args``
+itself.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ class AirPulse:
     name = ""
     kernel_args = None
     space = None
-    # True: ``observe(t, kappa)`` after every committed step
+    # True: ``observe(t, signal)`` after every committed step
     watches_applanation = False
 
     def set_nodes(self, phi):
@@ -44,20 +45,11 @@ class AirPulse:
         """The time [s] of the pulse's peak at the apex (inf while it is not known yet)."""
         raise NotImplementedError
 
-    def observe(self, t, kappa):
-        """The apex curvature kappa [1/m] of the state committed at time t [s]."""
+    def observe(self, t, signal):
+        """The instrument's applanation signal (``readout.py``) of the state committed at time
+        t [s]."""
 
     def diagnostics(self) -> dict:
         """What the run reports of its pulse (user units)."""
         return {}
-
-
-def first_crossing_time(t_before, kappa_before, t, kappa):
-    """The time [s] where the apex curvature turns from convex to flat or concave between two
-    committed steps (kappa_before > 0 >= kappa), linearly interpolated as ``metrics.py`` does;
-    None when it does not."""
-    if kappa_before > 0.0 >= kappa:
-        s = kappa_before / (kappa_before - kappa)
-        return t_before + s * (t - t_before)
-    return None
 

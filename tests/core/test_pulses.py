@@ -13,7 +13,7 @@ from airpuff_core import ParameterError, RunParams, simulate
 from airpuff_core.kernels.air_jet import RAMP, SWITCH_OFF, TABLE, jet_pressures, pulse_pressure
 from airpuff_core.loads import pulse_for_run
 from airpuff_core.loads.corvis import CORVIS_APEX_MMHG, CORVIS_START_MS, CORVIS_STEP_MS
-from airpuff_core.params import MMHG_PA
+from airpuff_core.params import MMHG_PA, ORA_RISE_RATE
 
 PHI = np.linspace(0.0, math.pi / 3, 7)
 TIMES = np.linspace(0.0, 0.035, 71)
@@ -56,20 +56,24 @@ def test_ora_pulse_rises_then_falls_from_its_switch_off():
 
 
 def test_ora_switch_off_is_set_once_at_the_detected_applanation_plus_delay():
+    """The pump is switched off ``delay`` after the reflection signal's first peak of at least
+    the detection threshold: a smaller bump before it is no applanation, and the peak's time is
+    the vertex of the parabola through the top sample and its neighbours (at 1, 2, 3 ms through
+    0.2, 0.3, 0.25: 2 + 1/6 ms)."""
     jet = _pulse("ora", ora_delay=3.0)
-    jet.observe(0.0, 100.0)
-    jet.observe(0.001, 60.0)
-    assert math.isinf(jet.peak_time)
-    jet.observe(0.002, -40.0)  # convex -> concave between 1 and 2 ms: at 1.6 ms
-    assert jet.detected_applanation == pytest.approx(0.0016, rel=1e-12)
-    assert jet.peak_time == pytest.approx(0.0046, rel=1e-12)
-    jet.observe(0.003, 10.0)
-    jet.observe(0.004, -10.0)  # a later crossing does not move it
-    assert jet.peak_time == pytest.approx(0.0046, rel=1e-12)
+    for t_ms, signal in ((0.0, 0.001), (0.5, 0.05), (0.7, 0.04), (1.0, 0.2), (2.0, 0.3)):
+        jet.observe(t_ms * 1e-3, signal)
+    assert math.isinf(jet.peak_time) and math.isnan(jet.detected_applanation)
+    jet.observe(0.003, 0.25)
+    assert jet.detected_applanation == pytest.approx((2.0 + 1.0 / 6.0) * 1e-3, rel=1e-12)
+    assert jet.peak_time == pytest.approx((5.0 + 1.0 / 6.0) * 1e-3, rel=1e-12)
+    for t_ms, signal in ((4.0, 0.01), (5.0, 0.5), (6.0, 0.1)):  # a later peak does not move it
+        jet.observe(t_ms * 1e-3, signal)
+    assert jet.peak_time == pytest.approx((5.0 + 1.0 / 6.0) * 1e-3, rel=1e-12)
     late = _pulse("ora", ora_delay=0.0)
-    late.observe(0.001, 60.0)
-    late.observe(0.002, -40.0)
-    assert late.peak_time == 0.002  # a delay already passed: switched off now
+    for t_ms, signal in ((1.0, 0.2), (2.0, 0.3), (3.0, 0.25)):
+        late.observe(t_ms * 1e-3, signal)
+    assert late.peak_time == 0.003  # a delay already passed: switched off now
 
 
 def test_corvis_pulse_is_its_table_interpolated_linearly():
@@ -107,7 +111,7 @@ def test_a_table_pulse_with_a_switch_off_falls_from_it():
 
 def test_ora_run_switches_off_at_its_detected_applanation_plus_delay():
     """A coarse run under the ORA's pulse: the pump is switched off at the first applanation
-    the run reports (t_A1, from the curvature history as metrics.py finds it) plus the delay,
+    the run reports (t_A1, the reflection signal's peak as metrics.py finds it) plus the delay,
     and the stored pulse at the apex is the ramp up to it and the fall after it."""
     delay = 2.0
     result = simulate(RunParams(instrument="ora", ora_delay=delay, t_end=16.0))
@@ -115,7 +119,7 @@ def test_ora_run_switches_off_at_its_detected_applanation_plus_delay():
     assert diag["pulse_applanation_detected_ms"] == pytest.approx(m["t_A1"], abs=1e-9)
     t_off = diag["pulse_switch_off_ms"]
     assert t_off == pytest.approx(m["t_A1"] + delay, abs=1e-9)
-    rise = fall = 0.41e6 * 1e-3 / MMHG_PA  # mmHg/ms, the defaults
+    rise = fall = ORA_RISE_RATE * 1e3 / MMHG_PA  # mmHg/ms, the defaults (kPa/ms)
     t = result.time
     expected = np.where(t <= t_off, rise * t, np.maximum(0.0, rise * t_off - fall * (t - t_off)))
     np.testing.assert_allclose(result.histories["jet_pressure_apex"], expected, rtol=1e-12,

@@ -1,0 +1,67 @@
+"""The instruments' applanation read-outs (``airpuff_core.readout``) on closed-form shapes."""
+
+import math
+
+import numpy as np
+import pytest
+
+from airpuff_core.readout import (corvis_departure, nodal_slopes, ora_signal,
+                                  signal_applanations)
+
+# nodes of a profile out to 2.5 mm, non-uniform like a mesh graded towards the apex
+X = np.concatenate([[0.0], np.cumsum(np.linspace(0.12, 0.3, 12))])
+
+
+def cap(kappa):
+    """A spherical cap of curvature kappa [1/mm] (convex > 0), apex at y = 0."""
+    if kappa == 0.0:
+        return np.zeros_like(X)
+    r = 1.0 / kappa
+    return np.sign(r) * (np.sqrt(r * r - X * X) - abs(r))
+
+
+def test_nodal_slopes_exact_on_parabola():
+    y = 0.3 - 0.07 * X ** 2
+    assert np.allclose(nodal_slopes(X, y), -0.14 * X, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kappa", [0.0, 0.004, -0.01, 0.03])
+@pytest.mark.parametrize("r_zone,acceptance", [(1.0, 0.05), (1.5, 0.02)])
+def test_ora_signal_of_a_cap(kappa, r_zone, acceptance):
+    """S = (1 - exp(-u)) / u, u = (2 kappa r_zone / acceptance)^2, for slopes small enough
+    that atan and the cap's slope are kappa r to within 1e-4 (relative)."""
+    u = (2.0 * kappa * r_zone / acceptance) ** 2
+    expected = 1.0 if u == 0.0 else (1.0 - math.exp(-u)) / u
+    assert ora_signal(X, cap(kappa), r_zone, acceptance) == pytest.approx(expected, rel=2e-3)
+
+
+@pytest.mark.parametrize("kappa", [0.0, 0.01, -0.05])
+def test_corvis_departure_of_a_parabola(kappa):
+    """y = -kappa x^2 / 2 over |x| <= h = L/2: D2 = kappa^2 h^4 / 45."""
+    length = 1.82
+    h = 0.5 * length
+    d = corvis_departure(X, -0.5 * kappa * X ** 2, length)
+    # the profile is linear between nodes: within the chord's interpolation error
+    assert d == pytest.approx(kappa ** 2 * h ** 4 / 45.0, rel=0.04, abs=1e-15)
+
+
+def test_signal_applanations_of_a_sequence_of_caps():
+    """Caps whose curvature falls through 0 at t1, reaches a concave extreme and rises through
+    0 at t2: the ORA signal peaks (flat caps) and the Corvis departure's minima are at t1, t2,
+    on steps that straddle them unevenly."""
+    t1, t2, t_split = 8.3137, 21.0711, 15.0
+    rng = np.random.default_rng(1)
+    t = np.cumsum(rng.uniform(0.02, 0.06, 700))  # to about 28 ms
+    kappa = 0.13 * np.sin(math.pi * (t - t1) / (t2 - t1) + math.pi)
+    s_ora = np.array([ora_signal(X, cap(k), 1.0, 0.05) for k in kappa])
+    s_corvis = -np.array([corvis_departure(X, cap(k), 1.82) for k in kappa])
+    dt = np.max(np.diff(t))
+    for s in (s_ora, s_corvis):
+        a1, a2 = signal_applanations(t, s, t_split)
+        assert abs(a1 - t1) < 0.05 * dt and abs(a2 - t2) < 0.05 * dt
+
+
+def test_no_peak_is_nan():
+    t = np.linspace(0.0, 10.0, 50)
+    a1, a2 = signal_applanations(t, t.copy(), 5.0)  # rising throughout: no peak
+    assert math.isnan(a1) and math.isnan(a2)
