@@ -1,13 +1,9 @@
 """ORA and Corvis-style metrics from the histories of one run (user units: ms, mmHg, mm, m/s).
 
-The paper's read-out (the paper's jet): applanation = a sign change of the apical curvature:
-convex -> concave is the first applanation A1 (the first such crossing), concave -> convex the
-second, A2 (the last such crossing), the instants interpolated linearly between solver steps.
-The instruments' read-out (``instrument = ora | corvis``): A1 and A2 are the highest peaks of
-the instrument's applanation signal before and after the highest concavity (``readout.py``: the
-ORA's reflection signal, the Corvis ST's flatness over the applanation length), refined by a
-parabola through the top step and its neighbours.  P1, P2 are the air pulse's pressure at the
-apex at those instants (evaluated exactly).  Then, as in the paper (section 4):
+The applanations A1 and A2 are read as ``readout.py`` reads them: for the paper's jet the sign
+changes of the apical curvature, for the ORA and the Corvis ST the peaks of the instrument's
+applanation signal before and after the highest concavity.  P1, P2 are the air pulse's pressure
+at the apex at those instants (evaluated exactly).  Then, as in the paper (section 4):
 
     CH = P1 - P2,   IOPg = 0.5 (P1 + P2),   IOPcc = P1 - 0.43 P2
 
@@ -36,18 +32,7 @@ import math
 
 import numpy as np
 
-from .readout import signal_applanations
-
-
-def _crossings(t, f, downward):
-    """Interpolated times where f crosses zero downward (+ -> -) or upward (- -> +)."""
-    out = []
-    for i in range(1, len(f)):
-        a, b = f[i - 1], f[i]
-        if (downward and a > 0 >= b) or (not downward and a < 0 <= b):
-            s = a / (a - b)
-            out.append((t[i - 1] + s * (t[i] - t[i - 1]), i - 1, s))
-    return out
+from .readout import applanations, curvature_crossings
 
 
 def peak_distance(x, y):
@@ -132,21 +117,9 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
     m["v_in_max"] = float(np.nanmax(vel))
     m["v_out_max"] = float(-np.nanmin(vel))
 
-    down = _crossings(step_t, step_kappa, True)
-    up = _crossings(step_t, step_kappa, False)
-    extra["applanation_crossings_down"] = len(down)
-    extra["applanation_crossings_up"] = len(up)
-    if step_signal is not None:
-        a1, a2 = (_step_position(step_t, ta) for ta in
-                  signal_applanations(step_t, step_signal, m["t_HC"]))
-        never = "the instrument's applanation signal had no peak before the highest concavity"
-        missing = "the instrument's applanation signal had no peak after the highest concavity"
-    else:
-        a1 = down[0] if down else None
-        up = [u for u in up if a1 is not None and u[0] > a1[0]]
-        a2 = up[-1] if up else None
-        never = "the cornea never applanated (apex curvature stayed convex)"
-        missing = "the cornea did not return to convex before the end of the run"
+    extra["applanation_crossings_down"] = len(curvature_crossings(step_t, step_kappa, True))
+    extra["applanation_crossings_up"] = len(curvature_crossings(step_t, step_kappa, False))
+    a1, a2, (never, missing) = applanations(step_t, step_kappa, step_signal, m["t_HC"])
     if a1 is not None:
         _applanation(m, extra, "1", a1, jet_apex, step_fluid_p, step_velocity, step_budget)
         if a2 is not None:
@@ -165,14 +138,6 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
         for k in ("CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora"):
             notes[k] = "needs both applanations"
     return m, notes, extra
-
-
-def _step_position(step_t, t_ms):
-    """(t_ms, i, s) with t_ms between steps i and i + 1 at the fraction s; None for NaN."""
-    if not math.isfinite(t_ms):
-        return None
-    i = min(max(int(np.searchsorted(step_t, t_ms)) - 1, 0), len(step_t) - 2)
-    return t_ms, i, (t_ms - step_t[i]) / (step_t[i + 1] - step_t[i])
 
 
 def _applanation(m, extra, n, at, jet_apex, step_fluid_p, step_velocity, step_budget):

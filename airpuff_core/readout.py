@@ -1,5 +1,10 @@
-"""The instruments' applanation read-outs: what the ORA's light detector and the Corvis ST's
-camera see of the central cornea (docs/model.md section 7; user units: mm, ms, rad).
+"""The applanation read-outs, every one in this module: the paper's (the apex curvature's sign
+changes) and what the ORA's light detector and the Corvis ST's camera see of the central cornea
+(docs/model.md section 7; user units: mm, ms, rad).
+
+**The paper's jet** (``curvature_crossings``): convex -> concave of the apex curvature is the
+first applanation A1 (the first such crossing), concave -> convex the second, A2 (the last such
+crossing after A1), the instants interpolated linearly between solver steps.
 
 The cornea's profile is given by its nodes x_k >= 0 (from the axis, apex first, x_0 = 0) and
 y_k (towards the nozzle), an even function of x.
@@ -30,6 +35,9 @@ corner there, which biases the parabolic refinement below by a fraction of a ste
 the minima of D2), the first applanation the highest peak before the highest concavity, the
 second the highest after it, each refined by the vertex of the parabola through the top step
 and its two neighbours.
+
+``applanations`` gives a run's two applanations by its instrument's read-out, as the metrics
+(``metrics.py``) take them.
 """
 
 from __future__ import annotations
@@ -105,6 +113,19 @@ def corvis_departure(x, y, length=CORVIS_LENGTH_MM):
     return w_end * (dev[0] + dev[-1]) + np.sum(dev[1:-1]) / (n - 1)
 
 
+def curvature_crossings(t, kappa, downward):
+    """[(t_c, i, s)]: the times where the apex curvature kappa at the step times t crosses zero
+    downward (convex -> flat or concave, kappa_i > 0 >= kappa_i+1) or upward (concave -> flat
+    or convex, kappa_i < 0 <= kappa_i+1), linearly interpolated: t_c = t_i + s (t_i+1 - t_i)."""
+    out = []
+    for i in range(1, len(kappa)):
+        a, b = kappa[i - 1], kappa[i]
+        if (downward and a > 0 >= b) or (not downward and a < 0 <= b):
+            s = a / (a - b)
+            out.append((t[i - 1] + s * (t[i] - t[i - 1]), i - 1, s))
+    return out
+
+
 def peak_vertex(t0, t1, t2, s0, s1, s2):
     """The time of the vertex of the parabola through (t0, s0), (t1, s1), (t2, s2), the middle
     sample the highest; t1 where the three are not strictly concave."""
@@ -135,6 +156,40 @@ def signal_applanations(t, s, t_split):
     s = np.asarray(s)
     k = int(np.searchsorted(t, t_split))
     return _peak(t, s, 0, k)[1], _peak(t, s, k, t.shape[0])[1]
+
+
+def _step_position(t, t_a):
+    """(t_a, i, s) with t_a between the steps i and i + 1 at the fraction s; None for NaN."""
+    if not math.isfinite(t_a):
+        return None
+    i = min(max(int(np.searchsorted(t, t_a)) - 1, 0), len(t) - 2)
+    return t_a, i, (t_a - t[i]) / (t[i + 1] - t[i])
+
+
+# why an applanation is missing, by read-out: (no A1, no A2)
+_MISSING = {
+    "curvature": ("the cornea never applanated (apex curvature stayed convex)",
+                  "the cornea did not return to convex before the end of the run"),
+    "signal": ("the instrument's applanation signal had no peak before the highest concavity",
+               "the instrument's applanation signal had no peak after the highest concavity"),
+}
+
+
+def applanations(step_t, step_kappa, step_signal, t_hc):
+    """A run's two applanations (module docstring) from its step series [ms], apex curvature
+    and, for an instrument with a signal (``readout_for_run``), that signal (None for the
+    paper's jet: the curvature's sign changes).  Returns (a1, a2, reasons): each applanation
+    (t [ms], step i, fraction s between steps i and i + 1) or None, and the reasons for a
+    missing one (no A1, no A2)."""
+    if step_signal is not None:
+        a1, a2 = (_step_position(step_t, t_a) for t_a in
+                  signal_applanations(step_t, step_signal, t_hc))
+        return a1, a2, _MISSING["signal"]
+    down = curvature_crossings(step_t, step_kappa, True)
+    a1 = down[0] if down else None
+    up = [u for u in curvature_crossings(step_t, step_kappa, False)
+          if a1 is not None and u[0] > a1[0]]
+    return a1, (up[-1] if up else None), _MISSING["curvature"]
 
 
 class PeakDetector:
@@ -182,5 +237,5 @@ class InstrumentReadout:
 def readout_for_run(instrument, X_ref):
     """The ``InstrumentReadout`` of an instrument that reads the applanations from its own
     signal (``ora``, ``corvis``); None for the paper's jet, whose read-out is the apex
-    curvature's sign change (``metrics.py``)."""
+    curvature's sign change (``curvature_crossings``)."""
     return InstrumentReadout(instrument, X_ref) if instrument in ("ora", "corvis") else None

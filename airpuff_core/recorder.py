@@ -28,6 +28,7 @@ from .dataset import decodable_ms
 from .energy import EnergyBudget
 from .fluid import KAPPA
 from .metrics import compute_metrics, peak_distance
+from .readout import curvature_crossings
 from .params import MMHG_PA
 from .result import HISTORIES, SNAPSHOT_LABELS, RunResult
 from .threads import current_threads
@@ -160,10 +161,11 @@ class Recorder:
 
     def _take_event_snapshots(self, model):
         """Snapshots at the applanations (sign changes of the apex curvature) and the jet peak."""
-        kappa_before, kappa = self.step_kappa[-2], self.step_kappa[-1]
-        if kappa_before > 0 >= kappa and self.snapshots["first_applanation"] is None:
+        t, kappa = self.step_t[-2:], self.step_kappa[-2:]
+        if (self.snapshots["first_applanation"] is None
+                and curvature_crossings(t, kappa, downward=True)):
             self._take("first_applanation", model)
-        if kappa_before < 0 <= kappa:
+        if curvature_crossings(t, kappa, downward=False):
             self._take("second_applanation", model)
         # the peak of a pulse switched off by the eye (the ORA's) is known once it is passed
         if self.snapshots["jet_peak"] is None and model.t >= model.jet.peak_time:

@@ -37,6 +37,7 @@ import numpy as np
 
 from airpuff_core import RunParams, SimulationError
 from airpuff_core.solver import simulate
+from airpuff_core.calibration import apply_coefficients, fit_coefficients
 from airpuff_core.params import MMHG_PA
 from airpuff_core.readout import corvis_departure, ora_signal, signal_applanations
 
@@ -109,13 +110,14 @@ def readouts(data, ora_settings, corvis_lengths) -> dict:
 
 
 def calibration_residual(iops, p1, p2):
-    """Largest |a + b (p1 + p2)/2 - IOP| over the sweep, (a, b) by least squares."""
-    iopg = 0.5 * (np.asarray(p1) + np.asarray(p2))
-    ok = np.isfinite(iopg)
+    """Largest |IOPg_cal - IOP| over the sweep with the calibration's linear map fitted on it
+    (``calibration.fit_coefficients``); NaN with fewer than three points of both P1 and P2."""
+    iops, p1, p2 = (np.asarray(v, float) for v in (iops, p1, p2))
+    ok = np.isfinite(p1) & np.isfinite(p2)
     if ok.sum() < 3:
         return math.nan
-    b, a = np.polyfit(iopg[ok], np.asarray(iops)[ok], 1)
-    return float(np.max(np.abs(a + b * iopg[ok] - np.asarray(iops)[ok])))
+    coef = fit_coefficients(iops[ok], p1[ok], p2[ok])
+    return float(np.max(np.abs(apply_coefficients(coef, p1[ok], p2[ok])["IOPg_cal"] - iops[ok])))
 
 
 def main(argv=None):
