@@ -57,7 +57,7 @@ ORA_ZONE_RADIUS_MM = 1.53
 ORA_ACCEPTANCE_RAD = 0.02
 CORVIS_LENGTH_MM = 1.82
 # the ORA's pump is switched off after the first peak of at least a tenth of a flat zone's signal
-# (the peaks of the normal eye are 0.23-0.27, the convex cornea's signal below 0.01)
+# (its peaks over IOP 10-30: 0.23-0.27 at the normal eye's CCT; the convex cornea's: 0.002)
 ORA_DETECTION_THRESHOLD = 0.1
 
 

@@ -11,7 +11,7 @@ on the cornea is (SI)
 
 with t_A1 the first applanation detected in the run itself: the first peak of the ORA's
 reflection signal of at least a tenth of a flat zone's (``readout.py``: ``PeakDetector`` over the
-committed steps, refined as ``metrics.py`` refines the read-out's peaks).
+committed steps, refined as ``signal_applanations`` refines the metrics' peaks).
 The peak r_rise t_off depends on the eye: an eye that applanates later sees a higher peak.
 The detection uses the committed states only, so it is the same for any number of threads.
 """
