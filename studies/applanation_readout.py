@@ -17,8 +17,8 @@ IOP the largest change from the first c0; and, over the IOPs, the residual of th
 calibration IOPg_cal = a + b IOPg (``calibration.py``'s map; meaningful over an IOP sweep such as
 ``--IOP 10,12.5,...,30`` with ``--c0 10``).
 
-    python -m studies.applanation_readout --out /tmp/readout/coarse --resolution coarse
-    python -m studies.applanation_readout --out /tmp/readout/ora_sweep --resolution coarse \\
+    python -m studies.applanation_readout --out <folder>
+    python -m studies.applanation_readout --out <folder> --resolution coarse \\
         --c0 10 --IOP 10,12.5,15,17.5,20,22.5,25,27.5,30 --set instrument=ora --set thickness=0.52
 
 Every run's step record is kept as <out>/<name>.npz (``--reuse`` reads it back when its
@@ -27,7 +27,6 @@ parameters match); the tables go to <out>/table.md and the rows to <out>/rows.js
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
@@ -40,6 +39,7 @@ from airpuff_core.solver import simulate
 from airpuff_core.calibration import apply_coefficients, fit_coefficients
 from airpuff_core.params import MMHG_PA
 from airpuff_core.readout import corvis_departure, ora_signal, signal_applanations
+from studies.clinical_sound_speed import sound_speed_parser, sound_speed_points
 
 PROFILE_RADIUS_MM = 2.5  # mm: the nodes recorded (reference x), beyond any zone evaluated here
 
@@ -121,17 +121,10 @@ def calibration_residual(iops, p1, p2):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--resolution", default="coarse", choices=("coarse", "paper", "fine"))
-    ap.add_argument("--c0", default="10,20,40", help="base sound speeds [m/s]; c_slope = 2 c0")
-    ap.add_argument("--IOP", default="10,16,25", help="true IOPs [mmHg]")
-    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="any other run parameter")
-    ap.add_argument("--ora", default="1:0.02,1:0.05,1.5:0.02,1.5:0.05",
+    ap = sound_speed_parser(__doc__.splitlines()[0], "coarse")
+    ap.add_argument("--ora", default="1.53:0.02,1:0.02,1:0.05,1.53:0.05",
                     help="ORA zone radius [mm]:acceptance [rad] pairs")
     ap.add_argument("--corvis", default="1.82,1.34", help="Corvis applanation lengths [mm]")
-    ap.add_argument("--reuse", action="store_true")
     args = ap.parse_args(argv)
     c0s = [float(v) for v in args.c0.split(",")]
     iops = [float(v) for v in args.IOP.split(",")]
@@ -140,23 +133,18 @@ def main(argv=None):
     extra = dict(s.split("=", 1) for s in args.set)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = {}
-    for iop in iops:
-        for c0 in c0s:
-            name = f"IOP{iop:g}_c{c0:g}"
-            params = RunParams.from_dict({"model": "clinical", "thickness": 0.54, "IOP": iop,
-                                          "c0": c0, "c_slope": 2 * c0,
-                                          "resolution": args.resolution, **extra})
-            try:
-                data = record(params, args.out / f"{name}.npz", args.reuse)
-            except SimulationError as err:
-                rows[name] = {"status": "failed", "message": str(err)}
-                print(name, rows[name], flush=True)
-                continue
-            rows[name] = {"status": "ok", "wall_s": float(data["wall_s"]),
-                          **{k: list(v) for k, v in readouts(data, ora_settings,
-                                                             corvis_lengths).items()}}
-            print(name, json.dumps(rows[name]), flush=True)
-            (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
+    for name, params in sound_speed_points(iops, c0s, args.resolution, extra):
+        try:
+            data = record(params, args.out / f"{name}.npz", args.reuse)
+        except SimulationError as err:
+            rows[name] = {"status": "failed", "message": str(err)}
+            print(name, rows[name], flush=True)
+            continue
+        rows[name] = {"status": "ok", "wall_s": float(data["wall_s"]),
+                      **{k: list(v) for k, v in readouts(data, ora_settings,
+                                                         corvis_lengths).items()}}
+        print(name, json.dumps(rows[name]), flush=True)
+        (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
     text = table(rows, c0s, iops)
     (args.out / "table.md").write_text(text)
     print(text)

@@ -139,30 +139,40 @@ def table(rows, c0s, iops) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def sound_speed_points(iops, c0s, resolution, extra):
+    """(name, RunParams) of the clinical preset's normal eye (thickness 0.54 mm) at each IOP
+    [mmHg] and base sound speed c0 [m/s] (c_slope = 2 c0), ``extra`` any other parameters."""
+    for iop in iops:
+        for c0 in c0s:
+            yield f"IOP{iop:g}_c{c0:g}", RunParams.from_dict(
+                {"model": "clinical", "thickness": 0.54, "IOP": iop, "c0": c0,
+                 "c_slope": 2 * c0, "resolution": resolution, **extra})
+
+
+def sound_speed_parser(description, resolution):
+    """The options of a study over ``sound_speed_points`` (``resolution``: the default)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--resolution", default="paper", choices=("coarse", "paper", "fine"))
+    ap.add_argument("--resolution", default=resolution, choices=("coarse", "paper", "fine"))
     ap.add_argument("--c0", default="10,20,40", help="base sound speeds [m/s]; c_slope = 2 c0")
     ap.add_argument("--IOP", default="10,16,25", help="true IOPs [mmHg]")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="any other run parameter")
     ap.add_argument("--reuse", action="store_true")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv=None):
+    args = sound_speed_parser(__doc__.splitlines()[0], "paper").parse_args(argv)
     c0s = [float(v) for v in args.c0.split(",")]
     iops = [float(v) for v in args.IOP.split(",")]
     extra = dict(s.split("=", 1) for s in args.set)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = {}
-    for iop in iops:
-        for c0 in c0s:
-            name = f"IOP{iop:g}_c{c0:g}"
-            params = RunParams.from_dict({"model": "clinical", "thickness": 0.54, "IOP": iop,
-                                          "c0": c0, "c_slope": 2 * c0,
-                                          "resolution": args.resolution, **extra})
-            rows[name] = run(name, params, args.out, args.reuse)
-            print(name, json.dumps(rows[name]), flush=True)
-            (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
+    for name, params in sound_speed_points(iops, c0s, args.resolution, extra):
+        rows[name] = run(name, params, args.out, args.reuse)
+        print(name, json.dumps(rows[name]), flush=True)
+        (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
     text = table(rows, c0s, iops)
     (args.out / "table.md").write_text(text)
     print(text)
