@@ -53,7 +53,7 @@ class DivergenceDamping:
         self.built_for = -1
         n = h.shape[0]
         self._work = np.empty((4, n))  # scratch of the kernels
-        self._scatter = np.empty(2 * n)
+        self._rate_work = np.empty((2, 2 * n))
 
     def assemble(self, ops, x, weight):
         """D from the pair weights of the MFPM operator ``ops`` kept at its last build (at the
@@ -91,7 +91,7 @@ class DivergenceDamping:
         """out = -W_f^-1 D_f^T S W D v [m/s^2] with S = ``scale`` (gamma_div c h per node)."""
         D = self.D
         damping_rate(D.indptr, D.indices, D.data, vx, vy, scale, self.weight, self.free_x,
-                     self.free_y, self._scatter, out_x, out_y)
+                     self.free_y, self._rate_work, out_x, out_y)
 
     def _spectral_radius(self):
         n = self.h.shape[0]
@@ -115,6 +115,6 @@ class DivergenceDamping:
         steps = max(1, math.ceil(dt * self.gamma_div * c * self.radius_unit / SAFETY))
         D = self.D
         damping_increments(D.indptr, D.indices, D.data, vx, vy, scale, self.weight, self.free_x,
-                           self.free_y, dt / steps, steps, self._work, self._scatter, out_x,
+                           self.free_y, dt / steps, steps, self._work, self._rate_work, out_x,
                            out_y)
         return steps
