@@ -103,9 +103,12 @@ class StepControl:
         return min(dt_acoustic, dt_viscous)
 
     def max_step(self):
-        """An upper bound [s] of the next step's dt: the acoustic limit at the smallest sound
-        speed any rule gives, c >= c0 (infinite for c0 = 0)."""
-        return self.cfl * self.h_min / self.c0 if self.c0 > 0 else math.inf
+        """An upper bound [s] of the next step's dt: its acoustic limit cfl h_min / (c + v_max),
+        with the sound speed c its rule gives and the largest fluid speed v_max of the state
+        that ``end_step`` took in, the same figures ``time_step`` will use (infinite when both
+        are 0).  The viscous limit and a cut at ``t_stop`` only shorten the step."""
+        c = sound_speed(self.rule, self.c0, self.c_slope, self.v_prev, self.v_running)
+        return self.cfl * self.h_min / (c + self.v_prev) if c + self.v_prev > 0 else math.inf
 
     def _hyperviscous_limit(self):
         """Largest stable forward-Euler step [s] of the hyperviscosity gamma c h^5 H."""

@@ -98,6 +98,20 @@ def test_a_run_with_the_rigid_globe_never_moves_a_wall_node():
     assert model.chamber_volume() == model.cornea_chamber_volume()
 
 
+def test_the_bound_of_the_next_step_is_its_acoustic_limit():
+    """``max_step``, which the recorder asks before a step whether an output time may fall in
+    it, is the next step's acoustic limit exactly (so never below its dt) while the jet speeds
+    the fluid up and raises the sound speed."""
+    model = CoupledModel(RunParams(c_rule="running_max"))
+    control = model.control
+    for _ in range(40):
+        bound = control.max_step()
+        dt = model.step()
+        assert dt <= bound
+        assert bound == control.dt_limits["acoustic"]
+    assert control.c > control.c0  # the sound speed did move
+
+
 def test_sound_speed_rules_and_step_limits():
     assert sound_speed("fixed", 10.0, 20.0, 0.3, 0.5) == 10.0
     assert sound_speed("per_step", 10.0, 20.0, 0.3, 0.5) == 10.0 + 20.0 * 0.3
