@@ -84,14 +84,17 @@ class DivergenceDamping:
             (np.concatenate([wx * sign[pairs], diag_x, wy, diag_y]),
              (np.concatenate([rows, i_all, rows, i_all]),
               np.concatenate([cols, i_all, n + cols, n + i_all]))), shape=(n, 2 * n))
+        # D's compressed rows for the kernels, with unsigned offsets and columns: Numba then
+        # emits no negative-index check in their loops (docs/performance.md)
+        self._rows = (self.D.indptr.astype(np.uint64), self.D.indices.astype(np.uint32),
+                      self.D.data)
         self.weight = weight.copy()
         self.radius_unit = self._spectral_radius()
 
     def rate(self, vx, vy, scale, out_x, out_y):
         """out = -W_f^-1 D_f^T S W D v [m/s^2] with S = ``scale`` (gamma_div c h per node)."""
-        D = self.D
-        damping_rate(D.indptr, D.indices, D.data, vx, vy, scale, self.weight, self.free_x,
-                     self.free_y, self._rate_work, out_x, out_y)
+        damping_rate(*self._rows, vx, vy, scale, self.weight, self.free_x, self.free_y,
+                     self._rate_work, out_x, out_y)
 
     def _spectral_radius(self):
         n = self.h.shape[0]
@@ -113,8 +116,6 @@ class DivergenceDamping:
         sub-steps (module docstring), into out_x, out_y."""
         scale = self.gamma_div * c * self.h
         steps = max(1, math.ceil(dt * self.gamma_div * c * self.radius_unit / SAFETY))
-        D = self.D
-        damping_increments(D.indptr, D.indices, D.data, vx, vy, scale, self.weight, self.free_x,
-                           self.free_y, dt / steps, steps, self._work, self._rate_work, out_x,
-                           out_y)
+        damping_increments(*self._rows, vx, vy, scale, self.weight, self.free_x, self.free_y,
+                           dt / steps, steps, self._work, self._rate_work, out_x, out_y)
         return steps

@@ -3,7 +3,9 @@ docs/model.md section 4), on the divergence matrix D stored in compressed sparse
 
 D is (n, 2n): row i is the divergence at node i of the velocity (v_x, v_y) stacked, column c < n
 is v_x at node c, column n + c is v_y at node c (``indptr``, ``indices``, ``data``: the
-canonical CSR arrays of ``scipy.sparse.csr_matrix``, every row's columns sorted and unique).
+canonical CSR arrays of ``scipy.sparse.csr_matrix``, every row's columns sorted and unique; the
+offsets ``indptr`` as uint64 and the columns as uint32, so that no index is checked for being
+negative).
 D^T r is formed by scattering row i's entries times r_i into the columns, rows in increasing
 order: each column then receives its terms in the order of D^T's own compressed rows, so both
 products give the sums of ``scipy.sparse``'s matrix-vector product bit for bit (no fused
