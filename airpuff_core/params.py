@@ -197,6 +197,11 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("hyperviscosity_divergence", "1", 0.0, 0.0, 10.0,
            "strength gamma_div of the damping of the velocity's divergence, a bulk viscosity "
            "gamma_div c h (0 switches it off; docs/model.md section 4)", low_inc=True),
+        _p("wall_drift_feedforward", "ms", 0.0, 0.0, 10.0,
+           "filter time of the compliant walls' feed-forward of the fluid's volume drift rate, "
+           "which removes the make-up's lag and its mean pressure error growing with c^2 (0: "
+           "off; docs/model.md section 11)", low_inc=True,
+           si=("wall_drift_feedforward_s", 1e-3)),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories",
            si=("output_interval_s", 1e-3)),
         _p("cfl", "1", 0.6, 0.0, 0.6,

@@ -89,7 +89,8 @@ class CompliantWall:
     ``y0``: their reference heights; ``area``: A_eff.
     """
 
-    def __init__(self, x, y, wall_nodes, x_c, x_l, rigidity_per_m3, p0, rho0, mass, gamma):
+    def __init__(self, x, y, wall_nodes, x_c, x_l, rigidity_per_m3, p0, rho0, mass, gamma,
+                 drift_rate_time=0.0):
         self.nodes = np.asarray(wall_nodes)
         self.weight, self.pressure_weight = wall_weights(x[self.nodes], x_c, x_l)
         self.y0 = y[self.nodes].copy()
@@ -105,6 +106,11 @@ class CompliantWall:
         self.volume_offset = 0.0
         self.drift_displacement = 0.0
         self.drift_speed = 0.0
+        # feed-forward of the drift's rate (``commit``): its filter time [s] (0: off), the drift
+        # of the last step [m of wall displacement] and the filtered rate [m/s]
+        self.drift_rate_time = drift_rate_time
+        self.last_drift_target = None
+        self.drift_rate = 0.0
         # the wall's give under the fluid's acoustic pressure deviation (``commit``)
         self.transmitted_displacement = 0.0
         self.transmitted_speed = 0.0
@@ -167,6 +173,13 @@ class CompliantWall:
         its velocity like any wall motion.  (Moving the nodes without a velocity would not
         change the density and would feed the drift back; following the drift within one step
         amplifies the fluid's step-to-step noise.)
+
+        The make-up lags the drift by about DRIFT_RELAXATION_TIME times its rate Q, and the fluid
+        then holds the volume Q DRIFT_RELAXATION_TIME too little or too much: a mean pressure
+        error rho c^2 Q DRIFT_RELAXATION_TIME / V_chamber, which grows with c^2 (docs/model.md
+        section 11).  With ``drift_rate_time`` > 0 (the run parameter ``wall_drift_feedforward``)
+        the wall also moves at the drift's own rate, low-pass filtered over that time, so that
+        the make-up no longer lags a steady drift.
         """
         self.displacement, self.speed, self.pressure = state
         self.sound_speed = c
@@ -174,6 +187,12 @@ class CompliantWall:
         target = -drift / self.area
         self.drift_displacement += self.drift_speed * dt
         self.drift_speed = (target - self.drift_displacement) / DRIFT_RELAXATION_TIME
+        if self.drift_rate_time > 0.0:
+            if self.last_drift_target is not None and dt > 0.0:
+                step_rate = (target - self.last_drift_target) / dt
+                self.drift_rate += (step_rate - self.drift_rate) * min(1.0, dt / self.drift_rate_time)
+            self.last_drift_target = target
+            self.drift_speed += self.drift_rate
         self.transmitted_displacement += self.transmitted_speed * dt
         self.transmitted_speed = ((wall_pressure - self.pressure) / (self.rho0 * c)
                                   - self.transmitted_displacement / GIVE_RELAXATION_TIME)
@@ -251,7 +270,7 @@ class CompliantGlobe:
         self.walls = WallPressure(si, geometry, chamber)
         self.wall = CompliantWall(chamber.x, chamber.y, self.walls.nodes, *wall_span(si, geometry),
                                   si.ocular_rigidity_per_m3, si.p0_Pa, si.rho_fluid, mass,
-                                  si.tait_gamma)
+                                  si.tait_gamma, si.wall_drift_feedforward_s)
         self._trial = None
 
     def start(self, fluid_volume, chamber_volume):

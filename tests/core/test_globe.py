@@ -136,11 +136,31 @@ def test_clinical_preset_does_not_depend_on_the_sound_speed(clinical_paper_resul
         assert abs(fast[name] - base[name]) < tolerance, (name, base[name], fast[name])
 
 
-def _wall(c):
+def _wall(c, drift_rate_time=0.0):
     x_c, x_l = 2.04e-3 * math.sin(math.pi / 3), 7e-3 * math.sin(math.pi / 3)
     x = np.linspace(0.0, x_l, 20)
     return CompliantWall(x, np.zeros(20), np.arange(20), x_c, x_l, 0.0126 / UL_M3,
-                         16 * MMHG_PA, 1000.0, np.full(20, 1e-9), 7.0)
+                         16 * MMHG_PA, 1000.0, np.full(20, 1e-9), 7.0, drift_rate_time)
+
+
+@pytest.mark.parametrize("drift_rate_time", [0.0, 0.1e-3])
+def test_drift_make_up_lag_and_its_feed_forward(drift_rate_time):
+    """A fluid volume drifting at a steady rate Q: the first-order make-up follows the ramp
+    -Q t / A_eff with the steady lag DRIFT_RELAXATION_TIME Q / A_eff (the mean pressure error of
+    docs/model.md section 11); with the feed-forward of the drift's rate (``wall_drift_feedforward``)
+    the lag vanishes."""
+    dt, Q = 1e-6, 1e-11  # s, m^3/s (0.01 uL/ms)
+    wall = _wall(20.0, drift_rate_time)
+    P = wall.pressure
+    n = int(round(2e-3 / dt))  # 20 relaxation times
+    for k in range(1, n + 1):
+        wall.commit((0.0, 0.0, P), Q * k * dt, 0.0, dt, 20.0, P)
+    target = -Q * n * dt / wall.area
+    lag = wall.drift_displacement - target
+    if drift_rate_time == 0.0:
+        assert lag == pytest.approx(DRIFT_RELAXATION_TIME * Q / wall.area, rel=0.02)
+    else:
+        assert abs(lag) < 1e-3 * DRIFT_RELAXATION_TIME * Q / wall.area
 
 
 def test_transmitted_give_absorbs_acoustic_waves_and_keeps_the_law():
