@@ -201,10 +201,13 @@ class Operators:
         return self
 
     def laplacian_args(self):
-        """(start, nbr, sign, count, lap_b) for the Brookshaw-Laplacian kernels."""
+        """(start, nbr, sign, count, lap_b) for the Brookshaw-Laplacian kernels; start and count
+        as unsigned views (no copy), so that Numba emits no negative-index check on the pair
+        index in the kernels' loops (docs/performance.md)."""
         if not self.has_laplacian:
             raise RuntimeError("no Brookshaw pair lists: build with laplacian=True first")
-        return self.start, self.nbr, self.sign, self.count, self.lap_b
+        return (self.start.view(np.uint64), self.nbr, self.sign, self.count.view(np.uint64),
+                self.lap_b)
 
     def hyperviscosity_args(self):
         """(start, nbr, sign, count, lap_b, lap_c, weight) for the hyperviscosity kernels
