@@ -542,17 +542,11 @@ def _mapped_nodes(nodes, x, y, fields, parity, start, nbr, sign, count, weights,
                 k3 += q3 * d1
                 k4 += q4 * d1
             strain[i] = max(abs(a - 1.0), abs(b), abs(c), abs(d - 1.0))
-            det = a * d - b * c
-            if not det > 0.0:  # also NaN
+            tangled, g00, g01, g10, g11 = _inverse_gradient(a, b, c, d)
+            if tangled:
                 if status == 0:
                     status = i + 1
                 continue
-            inv_det = 1.0 / det
-            # G = F^-1 = [[d, -b], [-c, a]] / det
-            g00 = d * inv_det
-            g01 = -b * inv_det
-            g10 = -c * inv_det
-            g11 = a * inv_det
             _chain_rule(out, f0, i, n_rows, g00, g01, g10, g11, xxx, xxy, xyy, yxx, yxy, yyy,
                         e0, e1, e2, e3, e4)
             if f1 != f0:
@@ -596,22 +590,29 @@ def _mapped_gradient_nodes(nodes, x, y, fields, parity, start, nbr, sign, count,
                 e0 += q0 * d0
                 e1 += q1 * d0
             strain[i] = max(abs(a - 1.0), abs(b), abs(c), abs(d - 1.0))
-            det = a * d - b * c
-            if not det > 0.0:  # also NaN
+            tangled, g00, g01, g10, g11 = _inverse_gradient(a, b, c, d)
+            if tangled:
                 if status == 0:
                     status = i + 1
                 continue
-            inv_det = 1.0 / det
-            g00 = d * inv_det
-            g01 = -b * inv_det
-            g10 = -c * inv_det
-            g11 = a * inv_det
             # the gradient rows of ``_chain_rule`` with its row count read from ``out`` as there
             # (a constant 2 lets the compiler fuse the multiply-adds otherwise, and the last
             # bits of g_y differ from the full evaluation's)
             _chain_rule(out, f, i, out.shape[2], g00, g01, g10, g11, 0.0, 0.0, 0.0, 0.0, 0.0,
                         0.0, e0, e1, 0.0, 0.0, 0.0)
     return status
+
+
+@njit(inline="always")
+def _inverse_gradient(a, b, c, d):
+    """(tangled, G = F^-1 as g00, g01, g10, g11) of the deformation gradient F = [[a, b], [c, d]]:
+    G = [[d, -b], [-c, a]] / det F; ``tangled`` when det F is not positive (also NaN), and G is
+    then not computed (zeros)."""
+    det = a * d - b * c
+    if not det > 0.0:
+        return True, 0.0, 0.0, 0.0, 0.0
+    inv_det = 1.0 / det
+    return False, d * inv_det, -b * inv_det, -c * inv_det, a * inv_det
 
 
 @njit(inline="always")
