@@ -16,6 +16,7 @@ import numpy as np
 from .kernels.nodes import AXIS, INTERIOR
 from .params import RunParams
 from .coupling import CoupledModel
+from .step_control import StepControl
 
 
 @dataclass
@@ -50,14 +51,31 @@ def _pack(model, dofs):
 
 
 def linearised_step(params: RunParams, dt: float | None = None, eps_rho=1e-6, eps_v=1e-6,
-                    eps_x=1e-9) -> StabilityReport:
-    """Eigenvalues of the linearised one-step map about rest, with pmax forced to 0."""
+                    eps_x=1e-9, positions=None, patch=None) -> StabilityReport:
+    """Eigenvalues of the linearised one-step map about rest, with pmax forced to 0.
+
+    ``positions``: (x, y) [m] of every fluid node; the interior and axis nodes are moved there
+    (a cloud that a run's flow has distorted), the operators and the hyperviscosity's stability
+    limit built for it; the state stays at rest (uniform density, no velocity), which remains
+    an equilibrium.  The cornea and the walls stay at rest, so the cloud must be of a state near
+    rest (after the puff): nodes of a cloud beside a deformed cornea tangle.  ``patch``: indices of fluid nodes; only their density and velocity are
+    perturbed and read (every other DOF, the cornea's included, held at rest): the step map of
+    a patch, for a mode that lives on a few nodes."""
     params = params.replace(pmax=0.0, c_rule="fixed", coupling_tol=1e-9,
                             max_coupling_iterations=200)
     model = CoupledModel(params)
+    if positions is not None:
+        free = (model.fluid.kind == INTERIOR) | (model.fluid.kind == AXIS)
+        model.x[free] = positions[0][free]
+        model.y[free] = positions[1][free]
+        model.refresh_derivatives()
+        model.control = StepControl(model.si, params.c_rule, model.fluid)
     if dt is None:
         dt = model.control.time_step()
     dofs = _dofs(model)
+    if patch is not None:
+        dofs = [(name, np.intersect1d(idx, patch)) for name, idx in dofs
+                if name in ("rho", "vx", "vy")]
     base = {name: getattr(model, name).copy() for name in ("x", "y", "vx", "vy", "rho", "X", "Y",
                                                           "VX", "VY")}
     scale = {"rho": eps_rho * model.si.rho_fluid, "vx": eps_v, "vy": eps_v, "X": eps_x, "Y": eps_x,
@@ -144,3 +162,38 @@ def forward_euler_viscous_limit(M: np.ndarray, h_min: float) -> tuple[float, int
     damped = lam.real < 0
     limit = float(np.min(-2.0 * lam.real[damped] / np.abs(lam[damped]) ** 2))
     return limit / h_min ** 2, int(np.count_nonzero(~damped))
+
+
+def acoustic_self_coupling(model: CoupledModel) -> np.ndarray:
+    """The diagonal of D G [1/m^2] at every fluid node, for the operator of ``model`` at its last
+    build: the linearised acoustics d^2 rho/dt^2 = c^2 D G rho (D the solver's axisymmetric
+    divergence, ``divergence_damping.py``; G its pressure gradient on the velocity components
+    that are not Dirichlet values).  On a regular cloud every entry is negative (a density
+    excess at a node pushes fluid away from it); a positive entry is a node whose neighbourhood
+    the flow has distorted so that its own excess draws fluid in: a mode living on that node
+    then grows like exp(c sqrt((D G)_ii) t) unless damped on both fields (docs/model.md
+    section 4)."""
+    from .divergence_damping import DivergenceDamping
+    import scipy.sparse as sp
+
+    fluid = model.fluid
+    ops = fluid.ops_n
+    n = model.chamber.n
+    divergence = DivergenceDamping(1.0, model.chamber.h, fluid.pinned_vx, fluid.pinned_vy)
+    divergence.assemble(ops, fluid.x, ops.adjoint_weight)
+    start, nbr, count, weights = ops.start, ops.nbr, ops.count, ops.lap_w
+    rows = np.repeat(np.arange(n), count)
+    pairs = (np.concatenate([np.arange(start[i], start[i] + count[i]) for i in range(n)])
+             if n else np.zeros(0, np.int64))
+    cols = nbr[pairs].astype(np.int64)
+    nodes = np.arange(n)
+
+    def gradient(component, free):  # pressure is even across the axis: no sign for images
+        w = weights[component, pairs]
+        g = sp.csr_matrix((np.concatenate([w, -np.bincount(rows, w, n)]),
+                           (np.concatenate([rows, nodes]), np.concatenate([cols, nodes]))),
+                          shape=(n, n))
+        return sp.diags(free.astype(float)) @ g
+
+    G = sp.vstack([gradient(0, divergence.free_x), gradient(1, divergence.free_y)])
+    return (divergence.D @ G).diagonal()
