@@ -14,16 +14,25 @@ stabilisation asked for.
     python -m studies.cloud_saddle RUN.nc --c 61 \\
         --variant hyperviscosity_speed=15,hyperviscosity_divergence=0.5 \\
         --variant hyperviscosity_speed=15,hyperviscosity_divergence=2
+
+or, running the case itself to its blow-up (or its end) and analysing the cloud ``--before``
+steps before it, with the fluid's largest speed, where it is, over the last steps:
+
+    python -m studies.cloud_saddle --params model=clinical,thickness=0.54,resolution=fine,c0=40,\\
+        c_slope=80,hyperviscosity_speed=15,hyperviscosity_divergence=0.5 --c 61
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import time
 
 import numpy as np
 
+from airpuff_core.blowup import BlowUpCheck
 from airpuff_core.coupling import CoupledModel
+from airpuff_core.errors import SimulationError
 from airpuff_core.dataset import open_dataset, params_from_dataset
 from airpuff_core.kernels.nodes import AXIS, INTERIOR
 from airpuff_core.params import RunParams
@@ -42,17 +51,54 @@ def cloud_of(path, label):
         return params_from_dataset(ds), (x, y), float(ds["snapshot_time"].values[k])
 
 
+def record_to_blowup(params, before):
+    """Run ``params`` to its end or its blow-up; returns (params, (x, y) [m], time [ms]) of the
+    state ``before`` steps before the last, and prints the fluid's largest speed [m/s], its node
+    and the node's kind over the last 2 ``before`` steps."""
+    model = CoupledModel(params)
+    check = BlowUpCheck()
+    clouds = collections.deque(maxlen=before + 1)
+    speeds = collections.deque(maxlen=2 * before)
+    t_end = model.si.t_end_s
+    try:
+        while model.t < t_end - 1e-15:
+            model.step(t_stop=t_end, observers=(check,))
+            speed = np.hypot(model.vx, model.vy)
+            i = int(np.argmax(speed))
+            speeds.append((model.t * 1e3, float(speed[i]), i, int(model.fluid.kind[i])))
+            clouds.append((model.t * 1e3, model.x.copy(), model.y.copy()))
+    except SimulationError as err:
+        print(err)
+    print("t [ms], largest fluid speed [m/s], its node (kind) over the last steps:")
+    for t_ms, v, i, kind in list(speeds)[::max(1, len(speeds) // 20)] + [speeds[-1]]:
+        print(f"  {t_ms:.5f} {v:.4g} {i} ({kind})")
+    t_ms, x, y = clouds[0]
+    return params, (x, y), t_ms
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("run", help="a run's netCDF file")
+    ap.add_argument("run", nargs="?", help="a run's netCDF file")
     ap.add_argument("--snapshot", default="end")
+    ap.add_argument("--params", help="NAME=VALUE,...: run this case to its blow-up instead")
+    ap.add_argument("--before", type=int, default=40,
+                    help="with --params: analyse the cloud this many steps before the last")
     ap.add_argument("--c", type=float, required=True, help="sound speed [m/s] of the analysis")
     ap.add_argument("--radius", type=float, default=6.0,
                     help="patch radius in node spacings about the worst node")
     ap.add_argument("--variant", action="append", default=[],
                     help="NAME=VALUE,... run parameters of one stabilisation (default: the run's)")
     args = ap.parse_args(argv)
-    params, (x, y), t_ms = cloud_of(args.run, args.snapshot)
+    if (args.run is None) == (args.params is None):
+        ap.error("give a run's file or --params")
+    if args.run is not None:
+        params, (x, y), t_ms = cloud_of(args.run, args.snapshot)
+        source = f"{args.run}, snapshot {args.snapshot}"
+    else:
+        params, (x, y), t_ms = record_to_blowup(
+            RunParams.from_dict(dict(kv.split("=", 1) for kv in args.params.split(","))),
+            args.before)
+        source = f"{args.before} steps before the last"
     params = params.replace(c0=args.c, c_rule="fixed")
     model = CoupledModel(params)
     free = (model.fluid.kind == INTERIOR) | (model.fluid.kind == AXIS)
@@ -61,7 +107,7 @@ def main(argv=None):
     self_coupling = acoustic_self_coupling(model)
     h = model.chamber.h
     worst = np.argsort(self_coupling * h ** 2)[::-1][:5]
-    print(f"{args.run}, snapshot {args.snapshot} (t = {t_ms:.2f} ms), c = {args.c:g} m/s")
+    print(f"{source} (t = {t_ms:.4f} ms), c = {args.c:g} m/s")
     print("nodes with the largest (D G)_ii h^2 (> 0: anti-diffusive):")
     for i in worst:
         d = np.hypot(x - x[i], y - y[i])
