@@ -81,6 +81,8 @@ class FluidStepper:
                                                                   "consistent_velocity")
         # the speed in the velocity's hyperviscosity in place of c (0: c itself)
         self.hv_velocity_speed = si.hyperviscosity_speed
+        # the density's hyperviscosity gamma c^2/c_rho h^5 with this c_rho (0: gamma c h^5)
+        self.hv_density_speed = si.hyperviscosity_density_speed
         # strain_limit > 0: one operator, built at the reference positions and mapped by the
         # deformation since (total Lagrangian form), rebuilt at the state once the largest
         # strain max |F - I| exceeds strain_limit; 0: every operator built at its positions
@@ -180,7 +182,7 @@ class FluidStepper:
             w["hv_vy"][:] = 0.0
             self._divergence_damping_rates(dt, c)
             return
-        scale = gamma * c * self.hv_scale_unit
+        scale = gamma * self.density_hyperviscosity_speed(c) * self.hv_scale_unit
         supersteps, stages = legendre_plan(dt / dt_hyperviscous)
         self.last_hv_substeps = supersteps * stages  # applications of the operator
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
@@ -209,9 +211,19 @@ class FluidStepper:
         self.work["hv_vx"] += dx / dt
         self.work["hv_vy"] += dy / dt
 
+    def density_hyperviscosity_speed(self, c):
+        """The speed [m/s] in the density's hyperviscosity gamma (speed) h^5 H rho at sound speed
+        c [m/s]: c^2 / c_rho with the option's c_rho (``hyperviscosity_density_speed``), c
+        without it (docs/model.md section 4)."""
+        return c * c / self.hv_density_speed if self.hv_density_speed > 0 else c
+
     def velocity_hyperviscosity_factor(self, c):
         """The velocity's hyperviscosity strength relative to the density's at sound speed c
-        [m/s]: c_v / c with the option's speed c_v (``hyperviscosity_speed``), 1 without it."""
+        [m/s]: c_v (``hyperviscosity_speed``; c without it) over the density's speed
+        (``density_hyperviscosity_speed``)."""
+        if self.hv_density_speed > 0:
+            velocity_speed = self.hv_velocity_speed if self.hv_velocity_speed > 0 else c
+            return velocity_speed / self.density_hyperviscosity_speed(c) if c > 0 else 1.0
         return self.hv_velocity_speed / c if self.hv_velocity_speed > 0 and c > 0 else 1.0
 
     def impose_cornea(self, X, Y, VX, VY):

@@ -194,6 +194,11 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("hyperviscosity_speed", "m/s", 0.0, 0.0, 1500.0,
            "speed c_v in the strength gamma c_v h^5 of the hyperviscosity on the velocity, in "
            "place of the sound speed c (0: c; docs/model.md section 4)", low_inc=True),
+        _p("hyperviscosity_density_speed", "m/s", 0.0, 0.0, 1500.0,
+           "speed c_rho in the strength gamma c^2/c_rho h^5 of the hyperviscosity on the "
+           "density, in place of gamma c h^5: growing with c^2, it holds the pressure of the "
+           "grid-scale density it balances independent of c (0: gamma c h^5; docs/model.md "
+           "section 4)", low_inc=True),
         _p("hyperviscosity_divergence", "1", 0.0, 0.0, 10.0,
            "strength gamma_div of the damping of the velocity's divergence, a bulk viscosity "
            "gamma_div c h (0 switches it off; docs/model.md section 4)", low_inc=True),

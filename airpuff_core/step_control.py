@@ -128,7 +128,8 @@ class StepControl:
                              for k in self._hv_kinds}
         self.hv_radius_unit = self._hv_radius(self.c)
         self.hv_radius_max = max(self.hv_radius_max, self.hv_radius_unit)
-        return HV_SAFETY / (gamma * self.c * self.hv_radius_unit * HV_MARGIN)
+        return HV_SAFETY / (gamma * fluid.density_hyperviscosity_speed(self.c)
+                            * self.hv_radius_unit * HV_MARGIN)
 
     def _hv_radius(self, c):
         """Spectral radius of the hyperviscosity per unit gamma c [1/s per m/s] at sound speed c

@@ -132,3 +132,31 @@ def test_with_brookshaw_coefficients_it_is_l_cubed(parity):
     # an odd field's rows on the axis are not used (v_x is pinned there)
     rows = np.ones(f.size, bool) if parity > 0 else model.x > 0.0
     assert np.abs(new - old)[rows].max() < 1e-11 * np.abs(old).max()
+
+
+@pytest.mark.parametrize("c", [10.0, 20.0, 40.0])
+def test_density_speed_makes_the_density_rate_grow_with_c_squared(c):
+    """``hyperviscosity_density_speed`` c_rho: the density's hyperviscous rate is
+    gamma c^2/c_rho h^5 H rho, (c / c_rho) times gamma c h^5 H rho, at every node and c, while the
+    velocity's (gamma c_v h^5 H v with ``hyperviscosity_speed`` c_v) stays the same
+    (docs/model.md section 4)."""
+    base = RunParams(resolution="coarse", hyperviscosity_speed=15.0)
+    rates = []
+    for params in (base, base.replace(hyperviscosity_density_speed=10.0)):
+        fluid = CoupledModel(params).fluid
+        rng = np.random.default_rng(3)
+        n = fluid.x.size
+        fluid.rho[:] = params.rho_fluid * (1.0 + 1e-3 * rng.standard_normal(n))
+        fluid.vx[:] = np.where(fluid.pinned_vx, 0.0, 1e-2 * rng.standard_normal(n))
+        fluid.vy[:] = np.where(fluid.pinned_vy, 0.0, 1e-2 * rng.standard_normal(n))
+        # a step far below the stability limit: one forward-Euler application, rate = S H f
+        # (from the increment Y - f of fields of order 1000: relative round-off ~1e-7)
+        fluid._hyperviscous_rates(1e-9, c, params.hyperviscosity, np.inf)
+        rates.append({k: fluid.work[k].copy() for k in ("hv_rho", "hv_vx", "hv_vy")})
+    default, option = rates
+    assert np.abs(default["hv_rho"]).max() > 0
+    np.testing.assert_allclose(option["hv_rho"], c / 10.0 * default["hv_rho"], rtol=1e-6,
+                               atol=1e-6 * np.abs(default["hv_rho"]).max())
+    for k in ("hv_vx", "hv_vy"):
+        np.testing.assert_allclose(option[k], default[k], rtol=1e-6,
+                                   atol=1e-6 * np.abs(default[k]).max())
