@@ -111,6 +111,9 @@ class FluidStepper:
                                               "div_new", "x_half", "y_half")}
         self._grad_p = np.zeros((1, n, 2))  # (p_x, p_y) at t^{n+1/2}
         self._hv_work = increments_work(n)
+        # the rate the density's hyperviscous stages integrate with it (zero without
+        # ``hyperviscosity_density_speed``)
+        self._rho_source = np.zeros(n)
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self.last_hv_substeps = 0
@@ -185,11 +188,17 @@ class FluidStepper:
         scale = gamma * self.density_hyperviscosity_speed(c) * self.hv_scale_unit
         supersteps, stages = legendre_plan(dt / dt_hyperviscous)
         self.last_hv_substeps = supersteps * stages  # applications of the operator
+        source = self._rho_source
+        if self.hv_density_speed > 0:
+            # the continuity equation's rate at t^n, integrated with the density's
+            # hyperviscosity: their balance at any dt (docs/model.md section 4)
+            np.multiply(self.rho, self.div, out=source)
+            np.negative(source, out=source)
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
                                      *self.ops_n.hyperviscosity_args(),
                                      self.hv_consistent_density, self.hv_consistent_velocity,
-                                     scale, self.velocity_hyperviscosity_factor(c), dt, stages,
-                                     supersteps, chunks(self.x.shape[0]),
+                                     scale, self.velocity_hyperviscosity_factor(c), source, dt,
+                                     stages, supersteps, chunks(self.x.shape[0]),
                                      *self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])
         w["hv_rho"] /= dt
         w["hv_vx"] /= dt

@@ -55,12 +55,20 @@ def increments_work(n):
 @njit(cache=True, fastmath=FUSED_MULTIPLY_ADD)
 def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, sign, count,
                                  lap_b, lap_c, area, consistent_density, consistent_velocity,
-                                 scale, velocity_factor, dt, stages, supersteps, n_chunks, work,
-                                 operator_work, out_rho, out_vx, out_vy):
+                                 scale, velocity_factor, rho_source, dt, stages, supersteps,
+                                 n_chunks, work, operator_work, out_rho, out_vx, out_vy):
     """Change of rho, v_x and v_y over dt [s] under d f/dt = scale H f by ``supersteps`` RKL1
     super-steps of dt / supersteps with ``stages`` stages each (module docstring):
     out_f = Y - f.  H and its arguments (start ... consistent_velocity) as
-    ``hyperviscous_flow_operator``; ``scale`` = gamma c h^5 per node.
+    ``hyperviscous_flow_operator``; ``scale`` = the density's gamma c h^5 per node, the
+    velocity's ``velocity_factor`` times it.
+
+    ``rho_source`` [kg/m^3/s]: a rate held fixed over dt that the density's stages integrate
+    together with the hyperviscosity, d rho/dt = scale H rho + rho_source, and that is taken out
+    of the increment again: out_rho = Y - rho - dt rho_source.  The caller adds the source itself
+    (the continuity equation's rate); integrated together, a density that the hyperviscosity
+    balances against it, scale H rho = -rho_source, is the steady state of the stages at any dt
+    (docs/model.md section 4).  Zero: the hyperviscosity alone.
 
     Nodes with ``pinned_vx`` / ``pinned_vy`` keep their velocity component in every stage
     (Dirichlet nodes: walls, the cornea, v_x on the axis); no density is pinned.  ``work`` and
@@ -90,7 +98,7 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
         for i in range(n):
             s = scale[i]
             sv = s * velocity_factor
-            prev_r[i] = base_r[i] + tau * (h_r[i] * s)
+            prev_r[i] = base_r[i] + tau * (h_r[i] * s + rho_source[i])
             prev_x[i] = vx[i] if pinned_vx[i] else base_x[i] + tau * (h_x[i] * sv)
             prev_y[i] = vy[i] if pinned_vy[i] else base_y[i] + tau * (h_y[i] * sv)
             old_r[i] = base_r[i]
@@ -107,7 +115,7 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
             for i in range(n):
                 s = scale[i]
                 sv = s * velocity_factor
-                old_r[i] = mu * prev_r[i] + nu * old_r[i] + tau * (h_r[i] * s)
+                old_r[i] = mu * prev_r[i] + nu * old_r[i] + tau * (h_r[i] * s + rho_source[i])
                 old_x[i] = (vx[i] if pinned_vx[i]
                             else mu * prev_x[i] + nu * old_x[i] + tau * (h_x[i] * sv))
                 old_y[i] = (vy[i] if pinned_vy[i]
@@ -116,6 +124,6 @@ def hyperviscous_flow_increments(rho, vx, vy, pinned_vx, pinned_vy, start, nbr, 
             prev_x, old_x = old_x, prev_x
             prev_y, old_y = old_y, prev_y
     for i in range(n):
-        out_rho[i] = prev_r[i] - rho[i]
+        out_rho[i] = prev_r[i] - rho[i] - dt * rho_source[i]
         out_vx[i] = prev_x[i] - vx[i]
         out_vy[i] = prev_y[i] - vy[i]

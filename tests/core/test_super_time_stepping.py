@@ -43,7 +43,7 @@ def _increments(model, fields, pinned_vx, pinned_vy, scale, dt, stages, superste
     n = model.x.size
     out = np.empty((3, n))
     hyperviscous_flow_increments(*fields, pinned_vx, pinned_vy, *_operator_args(model), scale, 1.0,
-                                 dt, stages, supersteps, 1, *increments_work(n), *out)
+                                 np.zeros(n), dt, stages, supersteps, 1, *increments_work(n), *out)
     return out
 
 
