@@ -134,8 +134,9 @@ def _p(name, unit, default, low, high, desc, low_inc=False, high_inc=True, si=No
 # The ORA's pulse (docs/model.md section 6): no published rise rate or switch-off delay was
 # found; both are calibrated on the ORA's applanation times (TimeIn, TimeOut of real records)
 # at the normal eye.
-ORA_RISE_RATE = 0.459  # kPa/ms
-ORA_DELAY = 4.91  # ms
+ORA_RISE_RATE = 0.590  # kPa/ms
+ORA_DELAY = 4.85  # ms
+ORA_ONSET = 3.5  # ms
 
 # name -> spec.  Ranges are what the model is meant for (clinical and numerical sanity), not what
 # merely avoids a crash; they are documented in the API schema and in docs/model.md.
@@ -176,6 +177,10 @@ PARAMETERS: dict[str, ParamSpec] = {
            "delay of the ORA's pump switch-off after the first applanation it detects "
            "(instrument=ora; calibrated: the second applanation at 18.87 ms at the normal eye, "
            "docs/model.md section 6)", low_inc=True, si=("ora_delay_s", 1e-3)),
+        _p("ora_onset", "ms", ORA_ONSET, 0.0, 20.0,
+           "time over which the ORA's pump rate rises from 0 to ora_rise_rate (instrument=ora; "
+           "a choice: the period of the cornea's lowest oscillation at the reference eye, "
+           "docs/model.md section 6)", low_inc=True, si=("ora_onset_s", 1e-3)),
         _p("ora_fall_rate", "kPa/ms", ORA_RISE_RATE, 0.0, 10.0,
            "fall rate of the ORA's pulse on the apex after the switch-off (instrument=ora; "
            "the rise rate: a symmetric pulse, a choice)", si=("ora_fall_rate_Pa_per_s", 1e6)),
@@ -258,7 +263,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
 # instrument refuses them away from their defaults
 INSTRUMENT_PARAMETERS = {
     "paper": ("pmax", "b", "T", "t0"),
-    "ora": ("ora_rise_rate", "ora_delay", "ora_fall_rate"),
+    "ora": ("ora_rise_rate", "ora_delay", "ora_onset", "ora_fall_rate"),
     "corvis": (),
 }
 # None: taken from the ``model`` preset (MODEL_PRESETS) unless given
@@ -297,8 +302,9 @@ CHOICE_DESCRIPTIONS = {
     "limbus": "support of the shell at the limbus (cornea kirchhoff or mindlin): clamped (rotation "
               "fixed) or pinned (free to rotate)",
     "instrument": "the air pulse: paper (the paper's jet, eq. (11): pmax, b, T, t0), ora (the "
-                  "Ocular Response Analyzer's: rising at ora_rise_rate, switched off ora_delay "
-                  "after the first applanation it detects, falling at ora_fall_rate) or corvis "
+                  "Ocular Response Analyzer's: rising at ora_rise_rate, reached over ora_onset, "
+                  "switched off ora_delay after the first applanation it detects, falling at "
+                  "ora_fall_rate) or corvis "
                   "(the Corvis ST's measured profile, peak 12.6 kPa at 18 ms); every one with "
                   "the spatial decay a",
     "eye_motion": "whole-eye motion: none (the eye stays put, the paper's) or spring_damper (the "

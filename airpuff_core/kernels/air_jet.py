@@ -11,7 +11,10 @@ kind:
       A(t) = f(t)                                    for t <= t_off,
       A(t) = max(0, f(t_off) - r_fall (t - t_off))   for t >  t_off,
   jet = (kind, a, t_off, r_fall, profile...), with f the kind's rise:
-  RAMP, profile (t_on, r_rise): f(t) = r_rise max(0, t - t_on);
+  RAMP, profile (t_on, r_rise, tau): the rate rising linearly from 0 to r_rise over tau
+  from t_on (a pump's pressure rate cannot jump), then constant: with u = t - t_on,
+      f = 0 (u <= 0),   r_rise u^2 / (2 tau) (0 < u < tau),   r_rise (u - tau/2) (u >= tau)
+  (tau = 0: the sharp ramp r_rise max(0, t - t_on));
   TABLE, profile (t_start, dt, f_0, ..., f_{n-1}): f linear between the samples f_k at
   t_start + k dt, 0 outside them.
   t_off = inf (never switched off) unless the pulse sets it while the run goes on
@@ -43,7 +46,11 @@ def air_jet(t, phi, pmax, a, b, T, t0):
 def rise(t, jet):
     """f(t) [Pa], the pulse's time profile before its switch-off (RAMP or TABLE)."""
     if jet[KIND] == RAMP:
-        return jet[PROFILE + 1] * max(0.0, t - jet[PROFILE])
+        u = max(0.0, t - jet[PROFILE])
+        tau = jet[PROFILE + 2]
+        if u < tau:
+            return jet[PROFILE + 1] * u * u / (2.0 * tau)
+        return jet[PROFILE + 1] * (u - 0.5 * tau)
     t_start, dt = jet[PROFILE], jet[PROFILE + 1]
     n = jet.shape[0] - PROFILE - 2
     u = (t - t_start) / dt

@@ -5,14 +5,18 @@ after the instrument detects the first applanation; the pressure then falls.  He
 on the cornea is (SI)
 
     p_a(t, phi) = A(t) exp(-a sin^2 phi),
-    A(t) = r_rise t                                    for t <= t_off,
-    A(t) = max(0, r_rise t_off - r_fall (t - t_off))   for t >  t_off,
+    A(t) = f(t)                                        for t <= t_off,
+    A(t) = max(0, f(t_off) - r_fall (t - t_off))       for t >  t_off,
+    f(t) = r_rise t^2 / (2 tau) for t < tau,  r_rise (t - tau/2) after,
     t_off = t_A1 + delay,
 
 with t_A1 the first applanation detected in the run itself: the first peak of the ORA's
 reflection signal of at least a tenth of a flat zone's (``readout.py``: ``PeakDetector`` over the
 committed steps, refined as ``signal_applanations`` refines the metrics' peaks).
-The peak r_rise t_off depends on the eye: an eye that applanates later sees a higher peak.
+The pump's rate rises over tau (``ora_onset``): a rate that jumped at t = 0 would set the cornea
+oscillating at its lowest period, and the phase of that oscillation at the applanation would
+scatter t_A1 and P1 about their trend in the IOP (docs/model.md section 6).
+The peak f(t_off) depends on the eye: an eye that applanates later sees a higher peak.
 The detection uses the committed states only, so it is the same for any number of threads.
 """
 
@@ -30,15 +34,16 @@ from .pulse import AirPulse
 
 class OraPulse(AirPulse):
     """The ORA's pulse of a run (``SIParams`` si: a, ora_rise_rate_Pa_per_s, ora_delay_s,
-    ora_fall_rate_Pa_per_s) on the cornea's nodes of reference angles phi [rad]."""
+    ora_onset_s, ora_fall_rate_Pa_per_s) on the cornea's nodes of reference angles phi [rad]."""
 
     name = "ora"
     watches_applanation = True
 
     def __init__(self, si, phi):
-        # (RAMP, a, t_off [s], r_fall [Pa/s], t_on [s], r_rise [Pa/s]); t_off is set online
+        # (RAMP, a, t_off [s], r_fall [Pa/s], t_on [s], r_rise [Pa/s], tau [s]); t_off is set
+        # online
         self.kernel_args = np.array([RAMP, si.a, math.inf, si.ora_fall_rate_Pa_per_s, 0.0,
-                                     si.ora_rise_rate_Pa_per_s])
+                                     si.ora_rise_rate_Pa_per_s, si.ora_onset_s])
         self.delay = si.ora_delay_s
         self.detected_applanation = math.nan  # s, t_A1 as the instrument saw it
         self._detector = PeakDetector(ORA_DETECTION_THRESHOLD)

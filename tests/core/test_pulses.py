@@ -13,7 +13,7 @@ from airpuff_core import ParameterError, RunParams, simulate
 from airpuff_core.kernels.air_jet import RAMP, SWITCH_OFF, TABLE, jet_pressures, pulse_pressure
 from airpuff_core.loads import pulse_for_run
 from airpuff_core.loads.corvis import CORVIS_APEX_MMHG, CORVIS_START_MS, CORVIS_STEP_MS
-from airpuff_core.params import MMHG_PA, ORA_RISE_RATE
+from airpuff_core.params import MMHG_PA, ORA_ONSET, ORA_RISE_RATE
 
 PHI = np.linspace(0.0, math.pi / 3, 7)
 TIMES = np.linspace(0.0, 0.035, 71)
@@ -35,24 +35,43 @@ def test_paper_pulse_is_eq_11():
     assert jet.peak_time == 0.012 and not jet.watches_applanation
 
 
-def test_ora_pulse_rises_then_falls_from_its_switch_off():
-    """A(t) = r_rise t up to t_off, then r_rise t_off - r_fall (t - t_off) down to 0, times
-    exp(-a sin^2 phi); without a switch-off it keeps rising."""
-    jet = _pulse("ora", ora_rise_rate=0.5, ora_fall_rate=0.8, ora_delay=2.0, a=15.0)
-    rise, fall = 0.5e6, 0.8e6  # Pa/s
+def _ora_rise(t, rate, tau):
+    """f(t) of the ORA's pump (docs/model.md section 6), written as the integral of its rate,
+    which rises linearly from 0 to ``rate`` over ``tau`` and is constant after."""
+    if tau == 0.0:
+        return rate * t
+    return rate * (t * t / (2.0 * tau) if t < tau else tau / 2.0 + (t - tau))
+
+
+@pytest.mark.parametrize("tau_ms", [0.0, 3.5])
+def test_ora_pulse_rises_then_falls_from_its_switch_off(tau_ms):
+    """A(t) = f(t) up to t_off (f' rising from 0 to r_rise over tau, then r_rise), then
+    f(t_off) - r_fall (t - t_off) down to 0, times exp(-a sin^2 phi); without a switch-off it
+    keeps rising; f is continuous with a continuous rate at tau."""
+    jet = _pulse("ora", ora_rise_rate=0.5, ora_fall_rate=0.8, ora_delay=2.0, a=15.0,
+                 ora_onset=tau_ms)
+    rise, fall, tau = 0.5e6, 0.8e6, tau_ms * 1e-3  # Pa/s, s
     spatial = np.exp(-15.0 * np.sin(PHI) ** 2)
     out = np.empty_like(PHI)
     for t in TIMES:
         jet.pressures(t, PHI, out)
-        np.testing.assert_allclose(out, rise * t * spatial, rtol=1e-14, atol=1e-9)
+        np.testing.assert_allclose(out, _ora_rise(t, rise, tau) * spatial, rtol=1e-13,
+                                   atol=1e-9)
     t_off = 0.011
     jet.kernel_args[SWITCH_OFF] = t_off
+    peak = _ora_rise(t_off, rise, tau)
     for t in TIMES:
-        amplitude = rise * t if t <= t_off else max(0.0, rise * t_off - fall * (t - t_off))
+        amplitude = _ora_rise(t, rise, tau) if t <= t_off else max(0.0, peak - fall * (t - t_off))
         jet.pressures(t, PHI, out)
         np.testing.assert_allclose(out, amplitude * spatial, rtol=1e-13, atol=1e-9)
-    assert jet.at_apex(t_off) == pytest.approx(rise * t_off, rel=1e-15)
-    assert jet.at_apex(t_off + rise * t_off / fall + 1e-6) == 0.0
+    assert jet.at_apex(t_off) == pytest.approx(peak, rel=1e-14)
+    assert jet.at_apex(t_off + peak / fall + 1e-6) == 0.0
+    if tau > 0.0:  # the rate at the end of the onset, from either side
+        h = 1e-7
+        left = (jet.at_apex(tau) - jet.at_apex(tau - h)) / h
+        right = (jet.at_apex(tau + h) - jet.at_apex(tau)) / h
+        assert left == pytest.approx(rise, rel=1e-4) and right == pytest.approx(rise, rel=1e-6)
+        assert jet.at_apex(1e-4) / (rise * 1e-4) == pytest.approx(1e-4 / (2.0 * tau), rel=1e-12)
 
 
 def test_ora_switch_off_is_set_once_at_the_detected_applanation_plus_delay():
@@ -103,7 +122,7 @@ def test_a_table_pulse_with_a_switch_off_falls_from_it():
     assert pulse_pressure(0.004, 0.0, jet) == pytest.approx(3000.0, rel=1e-14)
     assert pulse_pressure(0.005, 0.0, jet) == pytest.approx(2000.0, rel=1e-12)
     assert pulse_pressure(0.010, 0.0, jet) == 0.0
-    ramp = np.array([RAMP, 0.0, math.inf, 0.0, 0.001, 2e6])
+    ramp = np.array([RAMP, 0.0, math.inf, 0.0, 0.001, 2e6, 0.0])
     out = np.empty(2)
     jet_pressures(0.0005, np.zeros(2), ramp, out)
     assert list(out) == [0.0, 0.0]  # before its onset
@@ -121,11 +140,13 @@ def test_ora_run_switches_off_at_its_detected_applanation_plus_delay():
     assert t_off == pytest.approx(m["t_A1"] + delay, abs=1e-9)
     rise = fall = ORA_RISE_RATE * 1e3 / MMHG_PA  # mmHg/ms, the defaults (kPa/ms)
     t = result.time
-    expected = np.where(t <= t_off, rise * t, np.maximum(0.0, rise * t_off - fall * (t - t_off)))
+    f = np.array([_ora_rise(v, rise, ORA_ONSET) for v in t])
+    peak = _ora_rise(t_off, rise, ORA_ONSET)
+    expected = np.where(t <= t_off, f, np.maximum(0.0, peak - fall * (t - t_off)))
     np.testing.assert_allclose(result.histories["jet_pressure_apex"], expected, rtol=1e-12,
                                atol=1e-12)
-    assert diag["pulse_peak_apex_mmHg"] == pytest.approx(rise * t_off, rel=1e-12)
-    assert m["P1"] == pytest.approx(rise * m["t_A1"], rel=1e-12)
+    assert diag["pulse_peak_apex_mmHg"] == pytest.approx(peak, rel=1e-12)
+    assert m["P1"] == pytest.approx(_ora_rise(m["t_A1"], rise, ORA_ONSET), rel=1e-12)
 
 
 @pytest.mark.parametrize("options,name,accepted", [
@@ -133,6 +154,8 @@ def test_ora_run_switches_off_at_its_detected_applanation_plus_delay():
     ({"instrument": "ora", "ora_delay": 21.0}, "ora_delay", "[0, 20] ms"),
     ({"instrument": "ora", "ora_rise_rate": 0.0}, "ora_rise_rate", "(0, 10] kPa/ms"),
     ({"instrument": "ora", "ora_fall_rate": -1.0}, "ora_fall_rate", "(0, 10] kPa/ms"),
+    ({"instrument": "ora", "ora_onset": 21.0}, "ora_onset", "[0, 20] ms"),
+    ({"ora_onset": 1.0}, "ora_onset", "instrument=ora"),
     ({"instrument": "corvis", "pmax": 12.0}, "pmax", "instrument=paper"),
     ({"instrument": "ora", "T": 20.0}, "T", "instrument=paper"),
     ({"ora_delay": 3.0}, "ora_delay", "instrument=ora"),
@@ -152,3 +175,20 @@ def test_cli_rejects_a_bad_instrument_with_one_line():
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and name.replace("_", "") in lines[0].replace("-", "").replace(
             "_", ""), proc.stderr
+
+
+def test_ora_onset_leaves_the_cornea_no_free_oscillation():
+    """A load whose rate jumps (a sharp ramp) sets an oscillator swinging about its steady
+    drift: the apex's inward velocity overshoots and falls back before the applanation.  With
+    the pump's rate rising over about the cornea's lowest period (the default ``ora_onset``,
+    docs/model.md section 6) the velocity rises without falling back (coarse, clinical)."""
+    velocities = {}
+    for onset in (0.0, ORA_ONSET):
+        result = simulate(RunParams(instrument="ora", model="clinical", ora_onset=onset,
+                                    t_end=4.5))
+        velocities[onset] = result.histories["apex_velocity"][result.time >= 0.2]
+        first = result.time[result.time >= 0.2] <= 2.5  # the sharp ramp's first swing
+    sharp, smooth = velocities[0.0], velocities[ORA_ONSET]
+    peak = int(np.argmax(sharp[first]))
+    assert sharp[peak:].min() < 0.7 * sharp[peak], "the sharp ramp's overshoot is gone"
+    assert np.all(np.diff(smooth) > 0.0), "the smooth onset's velocity falls back"
