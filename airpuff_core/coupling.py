@@ -178,7 +178,7 @@ class CoupledModel:
         cornea_n = (self.X, self.Y, self.VX, self.VY)
         self.X, self.Y, self.VX, self.VY = self._cornea_trial
         self._cornea_trial = cornea_n
-        self.fluid.commit()
+        self.fluid.commit(dt)
         self.t += dt
         c = self.control.c
         self.globe.commit(self.fluid.density_volume(), self.cornea_chamber_volume(), dt, c,

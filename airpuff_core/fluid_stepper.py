@@ -42,11 +42,13 @@ from .kernels.fluid import (advance_density, advance_velocity, axisymmetric_dive
 from .kernels.hyperviscosity import (hyperviscous_flow_increments, increments_work,
                                      legendre_plan)
 from .kernels.nodes import AXIS, CORNEA, WALL
+from .kernels.shifting import concentration_gradient, shift_displacements, shift_nodes
 from .threads import chunks
 
 VELOCITY_PARITY = np.array([-1.0, 1.0])  # v_x is odd in x, v_y even
 PRESSURE_PARITY = np.array([1.0])
 STRAIN_LIMIT = 0.02  # default strain_limit of ``FluidStepper`` (docs/performance.md, issue 31)
+SHIFT_LIMIT = 0.05  # largest node shift per step / h (``node_shifting``, kernels/shifting.py)
 
 
 class FluidStepper:
@@ -122,6 +124,15 @@ class FluidStepper:
             DivergenceDamping(si.hyperviscosity_divergence, ch.h, self.pinned_vx, self.pinned_vy)
             if si.hyperviscosity_divergence > 0 else None)
         self._div_increments = (np.empty(n), np.empty(n))
+        # node shifting towards a regular cloud (``kernels/shifting.py``; 0: off)
+        self.shifting = si.node_shifting
+        if self.shifting > 0:
+            self.h = ch.h
+            self.area = ch.area
+            self._grad_c = np.zeros((n, 2))
+            self._grad_c_initial = None  # grad C of the initial cloud, at the first refresh
+            self._grad_rho = np.zeros((1, n, 2))
+            self._shift = (np.zeros(n), np.zeros(n))
 
     # -- derivatives ------------------------------------------------------------------------
     def velocity_derivatives(self, ops, x, y, vx, vy, dv, div, nodes=None, laplacian=False,
@@ -148,6 +159,9 @@ class FluidStepper:
         self.velocity_derivatives(self.ops_n, self.x, self.y, self.vx, self.vy, self.dv,
                                   self.div, laplacian=True)
         self.strain = 0.0
+        if self.shifting > 0 and self._grad_c_initial is None:
+            self._concentration_gradient()
+            self._grad_c_initial = self._grad_c.copy()
 
     # -- the parts of a step ----------------------------------------------------------------
     def predict(self, dt, c, t, hyperviscosity, dt_hyperviscous):
@@ -269,8 +283,9 @@ class FluidStepper:
         return interface_pressure_change(self.cornea_nodes, self.work["rho_new"], self.rho0,
                                          self.p0, c, self.gamma, p_ref, p_est, p_new)
 
-    def commit(self):
-        """The trial state becomes the state at t^{n+1} (buffers swapped, not copied)."""
+    def commit(self, dt=0.0):
+        """The trial state becomes the state at t^{n+1} (buffers swapped, not copied); with
+        ``node_shifting`` its nodes are then shifted (``shift``) after a step of dt [s]."""
         w = self.work
         self.x, w["x_new"] = w["x_new"], self.x
         self.y, w["y_new"] = w["y_new"], self.y
@@ -281,8 +296,40 @@ class FluidStepper:
         self.dv, self._dv_new = self._dv_new, self.dv
         self.ops_n, self.ops_new = self.ops_new, self.ops_n
         self.strain = self.strain_new
+        if self.shifting > 0 and dt > 0:
+            self.shift(dt)
         if self.lagrangian and not self.strain <= self.strain_limit:  # also NaN
             self.refresh_derivatives()  # the operator rebuilt at the new state
+
+    def _concentration_gradient(self):
+        start, nbr, sign, count, _ = self.ops_n.laplacian_args()
+        concentration_gradient(self.x, self.y, self.h, self.area, KAPPA, start, nbr, sign, count,
+                               self._grad_c)
+
+    def shift(self, dt):
+        """Node shifting after a step of dt [s] (``kernels/shifting.py``): the nodes moved down
+        the gradient of their concentration by A h (v_max dt) (grad C - grad C^0), the density
+        and velocities carried to the new positions by their gradients, and the velocity
+        derivatives at t^n re-evaluated there."""
+        self._concentration_gradient()
+        dx, dy = self._shift
+        start, nbr, _, count, _ = self.ops_n.laplacian_args()
+        shift_displacements(self.x, self.kind, self.h, self._grad_c, self._grad_c_initial,
+                            self.shifting * self.max_speed() * dt, SHIFT_LIMIT, start, nbr, count,
+                            dx, dy)
+        if self.lagrangian:
+            self.ops_n.mapped_derivatives(self.x, self.y, self.rho[np.newaxis], PRESSURE_PARITY,
+                                          self._grad_rho)
+        else:
+            self.ops_n.derivatives(self.x, self.y, self.rho[np.newaxis], PRESSURE_PARITY,
+                                   self._grad_rho)
+        shift_nodes(dx, dy, self.kind, self._grad_rho[0], self.dv[0], self.dv[1], self.x, self.y,
+                    self.rho, self.vx, self.vy)
+        if self.lagrangian:
+            self.strain = self.velocity_derivatives(self.ops_n, self.x, self.y, self.vx, self.vy,
+                                                    self.dv, self.div)
+        else:
+            self.refresh_derivatives()
 
     # -- quantities of the state ------------------------------------------------------------
     def max_speed(self):

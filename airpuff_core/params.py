@@ -207,6 +207,10 @@ PARAMETERS: dict[str, ParamSpec] = {
         _p("hyperviscosity_divergence", "1", 0.0, 0.0, 10.0,
            "strength gamma_div of the damping of the velocity's divergence, a bulk viscosity "
            "gamma_div c h (0 switches it off; docs/model.md section 4)", low_inc=True),
+        _p("node_shifting", "1", 0.0, 0.0, 100.0,
+           "strength A of the shifting of the fluid nodes towards a regular cloud, each step by "
+           "-A h (v_max dt) (grad C - grad C0), C the nodes' kernel-sum concentration (0: off; "
+           "docs/model.md section 4)", low_inc=True),
         _p("wall_drift_feedforward", "ms", 0.0, 0.0, 10.0,
            "filter time of the compliant walls' feed-forward of the fluid's volume drift rate, "
            "which removes the make-up's lag and its mean pressure error growing with c^2 (0: "
