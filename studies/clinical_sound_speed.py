@@ -9,19 +9,28 @@ to a further one (``rebound_dip``), how far P2 moves for an error of 0.01/mm in 
 curvature at A2 (``p2_conditioning``), and per IOP the largest change of each metric from c0 = 10.
 Tolerances (docs/validation.md): P1, P2 0.2 mmHg, CH 0.3 mmHg, DA 0.01 mm.
 
-    python -m studies.clinical_sound_speed --out soundspeed_paper                       # ~1 h
-    python -m studies.clinical_sound_speed --out soundspeed_fine --resolution fine --IOP 16
+The whole matrix of issue 25 (paper resolution at IOP 10, 16, 25; fine resolution for the normal
+eye, IOP 16; c0 = 10, 20, 40 each) with the options that make the preset independent of c
+(docs/validation.md, "The sound speed (issue 25)"), on two processes:
+
+    python -m studies.clinical_sound_speed --out soundspeed --fine-IOP 16 --workers 2 \
+        --set hyperviscosity_speed=15 --set hyperviscosity_divergence=0.5 \
+        --set wall_drift_feedforward=0.1 --set hyperviscosity_density_speed=10 \
+        --set node_shifting=1
+    python -m studies.clinical_sound_speed --out soundspeed_paper  # the preset, paper only
 
 Every finished run is kept as <out>/<name>.nc; --reuse reads back a run whose file has the same
-parameters.  A failed run (blow-up) is a row with its message.  The table goes to <out>/table.md
-and <out>/rows.json.
+parameters.  A failed run (blow-up) is a row with its message.  The table (with the model
+version) goes to <out>/table.md and <out>/rows.json.
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import json
 import math
+import multiprocessing
 import time
 from pathlib import Path
 
@@ -29,6 +38,8 @@ import numpy as np
 
 from airpuff_core import RunParams, SimulationError, simulate
 from airpuff_core.dataset import open_dataset, params_from_dataset, write_netcdf
+from airpuff_core.provenance import model_version
+from sweep.numba_cache import warm_numba_cache
 
 TOLERANCE = {"P1": 0.2, "P2": 0.2, "CH": 0.3, "DA": 0.01}
 FORMAT = {"DA": "%.3f", "rebound_dip": "%.3f", "convex_crossings": "%d"}
@@ -108,34 +119,69 @@ def run(name, params, out, reuse):
         return {"status": "ok", **row_of(ds)}
 
 
-def table(rows, c0s, iops) -> str:
+def run_points(points, out, reuse=False, workers=1, report=None):
+    """``run`` each (name, RunParams) of ``points``, in ``workers`` processes (1: in this one),
+    the costliest first (finer resolution, higher c0) so that the processes finish together.
+    Returns {name: row}; ``report(name, row)`` is called as each run ends."""
+    cost = {"coarse": 0, "paper": 1, "fine": 2}
+    points = sorted(points, key=lambda p: (cost[p[1].resolution], p[1].c0), reverse=True)
+    rows = {}
+
+    def done(name, row):
+        rows[name] = row
+        if report is not None:
+            report(name, row)
+
+    if workers <= 1:
+        for name, params in points:
+            done(name, run(name, params, out, reuse))
+        return rows
+    # Compiled here first, so that the workers load the kernels from the Numba cache instead of
+    # compiling into it at once (sweep/numba_cache.py); spawn: fresh interpreters, no fork of
+    # this process's Numba state.
+    warm_numba_cache(points[0][1])
+    ctx = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        futures = {pool.submit(run, name, params, out, reuse): name for name, params in points}
+        for future in concurrent.futures.as_completed(futures):
+            done(futures[future], future.result())
+    return rows
+
+
+def table(rows, c0s, groups) -> str:
+    """The rows of each (resolution, IOPs, name prefix) of ``groups`` at each c0, then per
+    resolution and IOP the largest change of each metric from the first c0."""
     cols = ("P1", "P2", "CH", "DA", "ringing_rms", "rebound_dip", "convex_crossings",
-            "P2_per_0.01_curvature") + PARTS
-    lines = ["| IOP | c0 | " + " | ".join(cols) + " | status |",
-             "|" + "---|" * (len(cols) + 3)]
-    for iop in iops:
-        for c0 in c0s:
-            r = rows[f"IOP{iop:g}_c{c0:g}"]
-            if r["status"] != "ok":
-                lines.append(f"| {iop:g} | {c0:g} | " + " | ".join("" for _ in cols)
-                             + f" | {r['message']} |")
-                continue
-            fmt = [FORMAT.get(k, "%.2f") % r[k] for k in cols]
-            lines.append(f"| {iop:g} | {c0:g} | " + " | ".join(fmt) + " | ok |")
+            "P2_per_0.01_curvature") + PARTS + ("wall_s",)
+    lines = [f"Model version {model_version()}.", "",
+             "| resolution | IOP | c0 | " + " | ".join(cols) + " | status |",
+             "|" + "---|" * (len(cols) + 4)]
+    for resolution, iops, prefix in groups:
+        for iop in iops:
+            for c0 in c0s:
+                r = rows[f"{prefix}IOP{iop:g}_c{c0:g}"]
+                head = f"| {resolution} | {iop:g} | {c0:g} | "
+                if r["status"] != "ok":
+                    lines.append(head + " | ".join("" for _ in cols) + f" | {r['message']} |")
+                    continue
+                lines.append(head + " | ".join(FORMAT.get(k, "%.2f") % r[k] for k in cols)
+                             + " | ok |")
     lines += ["", "Largest change from c0 = %g (tolerance):" % c0s[0], "",
-              "| IOP | " + " | ".join(f"{k} ({v:g})" for k, v in TOLERANCE.items()) + " | within |",
-              "|" + "---|" * (len(TOLERANCE) + 2)]
-    for iop in iops if len(c0s) > 1 else ():
-        base = rows[f"IOP{iop:g}_c{c0s[0]:g}"]
-        others = [rows[f"IOP{iop:g}_c{c0:g}"] for c0 in c0s[1:]]
-        if base["status"] != "ok" or any(o["status"] != "ok" for o in others):
-            lines.append(f"| {iop:g} | " + " | ".join("failed" for _ in TOLERANCE) + " | no |")
-            continue
-        change = {k: max(abs(o[k] - base[k]) for o in others) for k in TOLERANCE}
-        ok = all(change[k] < TOLERANCE[k] for k in TOLERANCE)
-        lines.append(f"| {iop:g} | " + " | ".join(
-            ("%.4f" if k == "DA" else "%.3f") % change[k] for k in TOLERANCE)
-            + f" | {'yes' if ok else 'no'} |")
+              "| resolution | IOP | " + " | ".join(f"{k} ({v:g})" for k, v in TOLERANCE.items())
+              + " | within |", "|" + "---|" * (len(TOLERANCE) + 3)]
+    for resolution, iops, prefix in groups if len(c0s) > 1 else ():
+        for iop in iops:
+            base = rows[f"{prefix}IOP{iop:g}_c{c0s[0]:g}"]
+            others = [rows[f"{prefix}IOP{iop:g}_c{c0:g}"] for c0 in c0s[1:]]
+            head = f"| {resolution} | {iop:g} | "
+            if base["status"] != "ok" or any(o["status"] != "ok" for o in others):
+                lines.append(head + " | ".join("failed" for _ in TOLERANCE) + " | no |")
+                continue
+            change = {k: max(abs(o[k] - base[k]) for o in others) for k in TOLERANCE}
+            ok = all(change[k] < TOLERANCE[k] for k in TOLERANCE)
+            lines.append(head + " | ".join(
+                ("%.4f" if k == "DA" else "%.3f") % change[k] for k in TOLERANCE)
+                + f" | {'yes' if ok else 'no'} |")
     return "\n".join(lines) + "\n"
 
 
@@ -163,17 +209,29 @@ def sound_speed_parser(description, resolution):
 
 
 def main(argv=None):
-    args = sound_speed_parser(__doc__.splitlines()[0], "paper").parse_args(argv)
+    ap = sound_speed_parser(__doc__.splitlines()[0], "paper")
+    ap.add_argument("--fine-IOP", default="",
+                    help="true IOPs [mmHg] also run at fine resolution (issue 25: 16)")
+    ap.add_argument("--workers", type=int, default=1, help="processes running the points")
+    args = ap.parse_args(argv)
     c0s = [float(v) for v in args.c0.split(",")]
     iops = [float(v) for v in args.IOP.split(",")]
     extra = dict(s.split("=", 1) for s in args.set)
+    groups = [(args.resolution, iops, "")]
+    if args.fine_IOP and args.resolution != "fine":
+        groups.append(("fine", [float(v) for v in args.fine_IOP.split(",")], "fine_"))
+    points = [(prefix + name, params) for resolution, group_iops, prefix in groups
+              for name, params in sound_speed_points(group_iops, c0s, resolution, extra)]
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = {}
-    for name, params in sound_speed_points(iops, c0s, args.resolution, extra):
-        rows[name] = run(name, params, args.out, args.reuse)
-        print(name, json.dumps(rows[name]), flush=True)
-        (args.out / "rows.json").write_text(json.dumps(rows, indent=1))
-    text = table(rows, c0s, iops)
+    finished = {}
+
+    def report(name, row):
+        finished[name] = row
+        print(name, json.dumps(row), flush=True)
+        (args.out / "rows.json").write_text(json.dumps(finished, indent=1))
+
+    rows = run_points(points, args.out, args.reuse, args.workers, report)
+    text = table(rows, c0s, groups)
     (args.out / "table.md").write_text(text)
     print(text)
 
