@@ -5,12 +5,14 @@ options that make it so: the fluid's stabilisation that does not grow with c
 forward (``wall_drift_feedforward`` 0.1 ms, section 11) and node shifting (``node_shifting`` 1,
 section 4).  At paper resolution, normal eye's CCT 0.54 mm, c0 = 10, 20, 40 m/s (c_slope = 2 c0):
 every run finishes, and from c0 = 10 P1 and P2 move by less than 0.2 mmHg, CH by less than 0.3
-mmHg and DA by less than 0.01 mm (docs/validation.md, "The sound speed (issue 25)").  The runs
-go through the study that makes the docs' table (``studies.clinical_sound_speed``), on two
-processes.
+mmHg and DA by less than 0.01 mm (docs/validation.md, "The sound speed (issue 25)"; measured
+at model version 7f94f7d43300: IOP 16 0.03, 0.06, 0.08 mmHg, 0.005 mm; IOP 25 0.03, 0.02, 0.04
+mmHg, 0.001 mm).  The runs go through the study that makes the docs' table
+(``studies.clinical_sound_speed``), on two processes.
 
 IOP 10 mmHg is not yet in ``IOPS``: at paper resolution its P2 and CH still move by about 0.5
-mmHg from c0 = 10 to 40 (docs/validation.md, "IOP 10: the cornea's motion moves with c")."""
+mmHg from c0 = 10 to 40 (docs/validation.md, "IOP 10: the cornea's motion moves with c"); once
+it does not, it is one more entry there."""
 
 import pytest
 
