@@ -9,8 +9,9 @@ fits have in common is computed once):
 * the reference eye: IOP 16 +- 2.9 mmHg and CCT 0.54 +- 0.031 mm (the 1,304-eye Corvis cohort's
   SDs, PMC7001013; the slope's CCTs move with it);
 * the pulse (ORA only): the rise rate by the spread of the two records' first applanation times
-  it was calibrated on (8.18 and 8.40 ms: x 8.29/8.40 and x 8.29/8.18, D), the switch-off delay
-  and the fall rate by a chosen +-1 ms and +-25 % (neither is published: docs/model.md section 6);
+  it was calibrated on (8.18 and 8.40 ms about their mean 8.29, D: :func:`rise_rate_for`), the
+  switch-off delay and the fall rate by a chosen +-1 ms and +-25 % (neither is published:
+  docs/model.md section 6);
 * the resolution: every other resolution of the solver;
 * the other tissue values: E0 0.5 +- 0.1 MPa (Pye's relative SD, 0.06 of 0.29 MPa, D: a secant
   modulus of another model), tau 10 ms halved and doubled (Kling et al. 2014 give one value: a
@@ -55,6 +56,7 @@ IOP_SD = 2.9  # mmHg, PMC7001013 (16.8 +- 2.9, 1,304 eyes)
 CCT_SD = 0.031  # mm, PMC7001013 (531 +- 31 um)
 E0_SD = 0.1  # MPa: 0.5 x 0.06 / 0.29 (Pye, PLoS ONE 15 (2020) e0224824), D
 ORA_TIME_IN = (8.18, 8.40)  # ms, the two ORA records the rise rate was calibrated on
+ORA_TIME_IN_MEAN = 8.29  # ms, their mean: the first applanation the rise rate was set to
 ORA_DELAY_STEP = 1.0  # ms, a choice (the delay is not published)
 ORA_FALL_FACTOR = 0.25  # a choice (the fall is not published)
 RIGIDITY_FRIEDENWALD = 0.0215  # 1/uL, Friedenwald 1937 (enucleated eyes), docs/model.md sec. 11
@@ -78,6 +80,26 @@ def _default(name: str) -> float:
     return float(PARAMETERS[name].default)
 
 
+def rise_rate_for(time_in: float, rise_rate: float, onset: float,
+                  calibrated_time_in: float = ORA_TIME_IN_MEAN) -> float:
+    """The ORA rise rate [kPa/ms] that moves the first applanation from ``calibrated_time_in``
+    to ``time_in`` [ms], the eye unchanged.
+
+    The pulse on the apex while the pump runs (``airpuff_core/loads/ora.py``) is
+    f(t) = r t^2 / (2 tau) for t < tau and r (t - tau/2) after, tau = ``onset``.  The first
+    applanation comes when f reaches the pressure that applanates the eye, the same for any
+    rate if the eye is: r (t_A1 - tau/2) = const (t_A1 > tau).  So
+    r' = r (t_cal - tau/2) / (t_in - tau/2): with tau = 3.5 ms the records' 8.18 and 8.40 ms
+    give x 1.0169 and x 0.9835, where 1/t_A1 (a pulse without its onset ramp) gives x 1.0134 and
+    x 0.9869.  The rate's own effect on the applanation (a faster pulse meets a stiffer
+    viscoelastic cornea) is left out: a first-order estimate of the spread, not a recalibration.
+    """
+    if min(time_in, calibrated_time_in) <= onset:
+        raise ValueError(f"the first applanation ({time_in:g}, {calibrated_time_in:g} ms) must "
+                         f"come after the onset ramp ({onset:g} ms)")
+    return rise_rate * (calibrated_time_in - onset / 2) / (time_in - onset / 2)
+
+
 def variations(resolution: str, ccts: tuple[float, ...] = CCT_POINTS,
                reference_cct: float = REFERENCE_CCT) -> list[Variation]:
     """Every variation of the fit about ``resolution`` and the slope's CCTs ``ccts``."""
@@ -95,13 +117,14 @@ def variations(resolution: str, ccts: tuple[float, ...] = CCT_POINTS,
             f"CCT {reference_cct:g} -> {reference_cct + shift:.3g} mm (the slope's CCTs too)",
             ("--cct", shifted, "--reference-cct", repr(round(reference_cct + shift, 6))),
             "SD of 1,304 eyes, PMC7001013"))
-    rise = _default("ora_rise_rate")
+    rise, onset = _default("ora_rise_rate"), _default("ora_onset")
     for tag, t_in in (("-", ORA_TIME_IN[1]), ("+", ORA_TIME_IN[0])):
-        value = rise * 8.29 / t_in
+        value = rise_rate_for(t_in, rise, onset)
         out.append(Variation(f"rise{tag}", "pulse", f"ora_rise_rate {rise:g} -> {value:.4g} "
                              f"kPa/ms", ("--set", f"ora_rise_rate={value!r}"),
                              f"D: the ORA records' TimeIn {t_in:g} ms instead of their mean "
-                             f"8.29 (docs/sources.md section 1)", "ora"))
+                             f"{ORA_TIME_IN_MEAN:g}, the onset ramp {onset:g} ms kept "
+                             f"(docs/sources.md section 1)", "ora"))
     delay = _default("ora_delay")
     for sign, tag in ((-1, "-"), (1, "+")):
         value = delay + sign * ORA_DELAY_STEP

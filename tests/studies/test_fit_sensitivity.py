@@ -10,7 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from airpuff_core.params import ORA_RISE_RATE
+from airpuff_core.kernels.air_jet import RAMP, rise
+from airpuff_core.params import ORA_ONSET, ORA_RISE_RATE
 from studies import fit_sensitivity as fs
 from sweep.engine import stored_record
 
@@ -35,11 +36,42 @@ def test_variations_move_each_choice_by_its_stated_spread():
     assert {n for n in vs if n.startswith("resolution-")} == {"resolution-coarse",
                                                               "resolution-fine"}
     rise = {n: float(vs[n].argv[1].split("=")[1]) for n in ("rise-", "rise+")}
-    # the rise rate scales as 1/t_A1 at a fixed applanation pressure
-    assert rise["rise-"] * 8.40 == pytest.approx(ORA_RISE_RATE * 8.29)
-    assert rise["rise+"] * 8.18 == pytest.approx(ORA_RISE_RATE * 8.29)
+    assert rise["rise-"] == pytest.approx(fs.rise_rate_for(8.40, ORA_RISE_RATE, ORA_ONSET))
+    assert rise["rise+"] == pytest.approx(fs.rise_rate_for(8.18, ORA_RISE_RATE, ORA_ONSET))
     assert all(vs[n].instrument == "ora" for n in vs if n[:4] in ("rise", "dela", "fall"))
     assert all(v.source for v in vs.values())
+
+
+def _pulse_time_to_reach(pressure_Pa, rise_rate_kPa_per_ms, onset_ms):
+    """When the ORA pulse's own time profile (the kernel's ``rise``) reaches a pressure [ms],
+    by bisection."""
+    jet = np.array([RAMP, 21.5, math.inf, 0.0, 0.0, rise_rate_kPa_per_ms * 1e6,
+                    onset_ms * 1e-3])
+    low, high = 0.0, 0.1
+    for _ in range(200):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if rise(mid, jet) < pressure_Pa else (low, mid)
+    return 0.5 * (low + high) * 1e3
+
+
+@pytest.mark.parametrize("time_in", [8.18, 8.40, 6.0, 12.0])
+@pytest.mark.parametrize("onset", [0.0, 3.5, 5.0])
+def test_rise_rate_moves_the_pulse_s_crossing_of_an_applanation_pressure(time_in, onset):
+    """The pulse with the scaled rate reaches the pressure the calibrated pulse had at 8.29 ms
+    at time_in instead: what the same eye's applanation pressure implies."""
+    jet = np.array([RAMP, 21.5, math.inf, 0.0, 0.0, ORA_RISE_RATE * 1e6, onset * 1e-3])
+    applanation_pressure = rise(8.29e-3, jet)
+    scaled = fs.rise_rate_for(time_in, ORA_RISE_RATE, onset)
+    assert _pulse_time_to_reach(applanation_pressure, scaled, onset) == pytest.approx(
+        time_in, abs=1e-9)
+    if onset > 0:  # a rate scaled as 1/t_A1 would miss it
+        naive = ORA_RISE_RATE * 8.29 / time_in
+        assert abs(_pulse_time_to_reach(applanation_pressure, naive, onset) - time_in) > 1e-3
+
+
+def test_rise_rate_refuses_an_applanation_inside_the_onset():
+    with pytest.raises(ValueError, match="onset"):
+        fs.rise_rate_for(3.0, ORA_RISE_RATE, 3.5)
 
 
 def test_unknown_variation_is_one_line(tmp_path, capsys):
