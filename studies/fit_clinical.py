@@ -167,6 +167,25 @@ class Solve:
         (xa, fa), (xb, fb) = self.history[-2:]
         return (fb - fa) / (xb - xa) if xb != xa else None
 
+    def bracket(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """The narrowest pair of evaluations (x, residual) whose residuals have opposite signs,
+        lower x first (None if the target was never bracketed)."""
+        pairs = [(a, b) for a in self.history for b in self.history
+                 if a[0] < b[0] and (a[1] < 0) != (b[1] < 0)]
+        return min(pairs, key=lambda ab: ab[1][0] - ab[0][0]) if pairs else None
+
+    def jump_ratio(self) -> float | None:
+        """How much faster the residual changes across the final bracket than across every
+        evaluation: the secant slope over the bracket divided by that over the outermost
+        evaluations.  About 1 for a smooth response; large (say > 10) where the response jumps
+        across the target inside the bracket, so that no value in it meets the target."""
+        bracket = self.bracket()
+        (x_lo, f_lo), (x_hi, f_hi) = min(self.history), max(self.history)
+        if bracket is None or x_hi == x_lo or f_hi == f_lo:
+            return None
+        (xa, fa), (xb, fb) = bracket
+        return abs((fb - fa) / (xb - xa)) / abs((f_hi - f_lo) / (x_hi - x_lo))
+
 
 def solve_monotone(residual: Callable[[float], float], low: float, high: float, x0: float,
                    step: float, tolerance: float, max_evaluations: int = 10,
@@ -379,7 +398,7 @@ class Responses:
         tissue values; made once per trial and recorded as an evaluation."""
         if (shear, ratio) in self._calibrations:
             return self._calibrations[(shear, ratio)]
-        from airpuff_core.calibration import REFERENCE_EYE, fit_coefficients
+        from airpuff_core.calibration import REFERENCE_EYE, apply_coefficients, fit_coefficients
 
         points = [self.params(shear, ratio, REFERENCE_EYE["thickness"],
                               **{**REFERENCE_EYE, "IOP": iop}) for iop in self.calibration_iops]
@@ -391,9 +410,12 @@ class Responses:
         except ValueError as err:
             raise FitError(f"no calibration at G_t {shear:g} kPa, g {ratio:g}: {err}") from None
         self._calibrations[(shear, ratio)] = coefficients
+        errors = np.asarray(apply_coefficients(coefficients, p1, p2)["IOPg_cal"]) - np.asarray(
+            self.calibration_iops)
         self._record("calibration_slope", shear, ratio, coefficients["pressure_slope"], "",
                      {"coefficients": coefficients, "IOP": list(self.calibration_iops),
-                      "P1_raw": p1, "P2_raw": p2})
+                      "P1_raw": p1, "P2_raw": p2,
+                      "max_error_mmHg": float(np.max(np.abs(errors)))})
         return coefficients
 
     def slope(self, shear: float, ratio: float, solve: str = "") -> float:
@@ -468,7 +490,8 @@ def fit(responses: Responses, slope_target: Target = SLOPE_TARGET, ch_target: Ta
                            max_evaluations, shear_derivative,
                            x_tolerance=1e-4 * (SHEAR.high - SHEAR.low), f0=slope_residual)
         solves.append({"parameter": SHEAR.name, "outer": outer, "at": {RATIO.name: g},
-                       **asdict(s)})
+                       **asdict(s), "bracket": s.bracket(),
+                       "jump_ratio": s.jump_ratio()})
         shear = s.x
         shear_derivative = s.derivative() or shear_derivative
         r = solve_monotone(lambda x: responses.ch(shear, x, f"g #{outer}") - ch_target.value,
@@ -476,7 +499,8 @@ def fit(responses: Responses, slope_target: Target = SLOPE_TARGET, ch_target: Ta
                            max_evaluations, ratio_derivative,
                            x_tolerance=1e-4 * (RATIO.high - RATIO.low))
         solves.append({"parameter": RATIO.name, "outer": outer, "at": {SHEAR.name: shear},
-                       **asdict(r)})
+                       **asdict(r), "bracket": r.bracket(),
+                       "jump_ratio": r.jump_ratio()})
         ratio = r.x
         ratio_derivative = r.derivative() or ratio_derivative
         slope = responses.slope(shear, ratio, f"check #{outer}")
@@ -606,11 +630,66 @@ def markdown(summary: dict, evaluations: list[dict]) -> str:
                   f"unit g [mmHg]. One outer iteration shrinks a linear model's error by "
                   f"{sens['gauss_seidel_factor']:.3f} (|dS/dg dCH/dG_t / (dS/dG_t dCH/dg)|); "
                   f"{summary['outer_iterations']} outer iteration(s) run.", ""]
+    lines += solve_lines(summary.get("solves") or [])
+    lines += calibration_lines(evaluations, summary)
     lines += ["| # | solve | response | G_t [kPa] | g | value |", "|---|---|---|---|---|---|"]
     for e in evaluations:
         lines.append(f"| {e['n']} | {e['solve']} | {e['response']} | {e[SHEAR.name]:.4f} | "
                      f"{e[RATIO.name]:.4f} | {e['value']:.3f} |")
     return "\n".join(lines) + "\n"
+
+
+JUMP_RATIO = 10.0  # a bracket's slope this many times the search's: the response jumps there
+
+
+def solve_lines(solves: list[dict]) -> list[str]:
+    """Each 1-D solve's end in words: its status, where it stopped and, if it bracketed the
+    target without meeting it, the bracket and whether the response jumps across the target
+    there (``Solve.jump_ratio`` above ``JUMP_RATIO``)."""
+    if not solves:
+        return []
+    symbols = {SHEAR.name: SHEAR.symbol, RATIO.name: RATIO.symbol}
+    lines = ["Solves:", ""]
+    for s in solves:
+        text = (f"- {symbols[s['parameter']]} #{s['outer']}: {s['status']} at {s['x']:.5g} "
+                f"(residual {s['residual']:+.3f}, {len(s['history'])} evaluations)")
+        bracket = s.get("bracket")
+        if s["status"] != "converged" and bracket:
+            (xa, fa), (xb, fb) = bracket
+            ratio = s.get("jump_ratio")
+            jumps = ratio is not None and ratio > JUMP_RATIO
+            text += (f"; the target lies between {xa:.5g} ({fa:+.3f}) and {xb:.5g} ({fb:+.3f})"
+                     + (f": the response JUMPS across it there ({ratio:.0f} x the search's "
+                        f"slope), no value meets it" if jumps else ""))
+        lines.append(text)
+    return lines + [""]
+
+
+CALIBRATION_AIM = 0.3  # mmHg, airpuff calibrate's aim on its reference sweep (docs/calibration.md)
+
+
+def calibration_lines(evaluations: list[dict], summary: dict) -> list[str]:
+    """The calibrations the fit made (one per trial): how many, the spread of their slopes,
+    which missed ``CALIBRATION_AIM`` on their reference sweep, and the one at the fitted
+    values."""
+    made = [e for e in evaluations if e["response"] == "calibration_slope"]
+    if not made:
+        return []
+    slopes = [e["value"] for e in made]
+    missed = [e for e in made if e.get("max_error_mmHg", 0.0) > CALIBRATION_AIM]
+    text = (f"Calibrations made: {len(made)} (one per trial (G_t, g)), slope b "
+            f"{min(slopes):.4f} to {max(slopes):.4f}; {len(missed)} missed "
+            f"{CALIBRATION_AIM:g} mmHg on their reference sweep"
+            + (": " + ", ".join(f"(G_t {e[SHEAR.name]:.4g}, g {e[RATIO.name]:.4g}) "
+                                 f"{e['max_error_mmHg']:.2f}" for e in missed) if missed else ""))
+    fitted = summary.get("fitted") or {}
+    at = (fitted.get(SHEAR.name, {}).get("value"), fitted.get(RATIO.name, {}).get("value"))
+    final = [e for e in made if (e[SHEAR.name], e[RATIO.name]) == at]
+    if final:
+        e = final[-1]
+        text += (f". At the fitted values: P_cal = {e['coefficients']['pressure_offset']:.4f} + "
+                 f"{e['value']:.5f} P, IOPg_cal - IOP max {e['max_error_mmHg']:.3f} mmHg")
+    return [text + ".", ""]
 
 
 # -- the command ----------------------------------------------------------------------------------
@@ -760,8 +839,12 @@ def main(argv=None) -> int:
                   f"{'computed' if entry['computed'] else 'reused'} "
                   f"IOPg {entry['IOPg']} CH {entry['CH']}", flush=True)
         else:
+            calibration = (f" (P_cal = {entry['coefficients']['pressure_offset']:.4f} + "
+                           f"{entry['value']:.5f} P, IOPg_cal - IOP max "
+                           f"{entry['max_error_mmHg']:.3f} mmHg on its reference sweep)"
+                           if entry["response"] == "calibration_slope" else "")
             print(f"[{entry['solve']}] {entry['response']} at G_t {entry[SHEAR.name]:.4f} kPa, "
-                  f"g {entry[RATIO.name]:.4f}: {entry['value']:.4f}", flush=True)
+                  f"g {entry[RATIO.name]:.4f}: {entry['value']:.4f}{calibration}", flush=True)
 
     def log_run(record, params):
         entry = run_entry(record, params)

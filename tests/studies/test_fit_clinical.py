@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import asdict
 
 import pytest
 import xarray as xr
@@ -62,6 +63,28 @@ def test_solve_monotone_newton_start_and_known_first_residual():
     s = fc.solve_monotone(f, 0.0, 4.0, 1.0, step=1.0, tolerance=1e-9, derivative=3.0, f0=-3.0)
     assert s.status == "converged" and s.x == pytest.approx(2.0)
     assert calls == [pytest.approx(2.0)]  # x0's residual was known; one Newton step
+
+
+def test_a_step_across_the_target_is_bracketed_and_reported_as_a_jump():
+    """A response that is smooth but for a step of 4 across the target at x = 2.3 (the ORA's
+    second applanation read on another peak): no value meets the target, the solve says where
+    it jumps; a smooth response's bracket is not called a jump."""
+    def step(x):
+        return 0.1 * (x - 2.3) + (2.0 if x >= 2.3 else -2.0)
+
+    s = fc.solve_monotone(step, 0.0, 5.0, 1.0, step=1.0, tolerance=0.01, max_evaluations=12)
+    assert s.status in ("evaluations", "bracket") and abs(s.residual) >= 2.0
+    (xa, fa), (xb, fb) = s.bracket()
+    assert xa < 2.3 <= xb and fa < 0 < fb and xb - xa < 0.5
+    assert s.jump_ratio() > fc.JUMP_RATIO
+    line = "\n".join(fc.solve_lines([{"parameter": fc.RATIO.name, "outer": 1, **asdict(s),
+                                       "bracket": s.bracket(), "jump_ratio": s.jump_ratio()}]))
+    assert "JUMPS" in line
+
+    smooth = fc.solve_monotone(lambda x: x * x - 5.0, 0.0, 5.0, 1.0, step=1.0, tolerance=1e-12,
+                               max_evaluations=4)
+    assert smooth.status == "evaluations" and smooth.bracket() is not None
+    assert smooth.jump_ratio() < fc.JUMP_RATIO
 
 
 def test_sensitivities_of_a_plane_are_its_coefficients():
@@ -177,3 +200,8 @@ def test_calibrated_readings_are_refit_per_trial_and_read_the_true_iop_at_the_re
     assert abs(raw[(13.0, 0.4)] - raw[(9.48, 0.3)]) > 1.0  # the calibrations had to differ
     calibrations = [e for e in responses.evaluations if e["response"] == "calibration_slope"]
     assert len(calibrations) == 2  # one per trial, reused within it
+    for e in calibrations:  # its error on the reference sweep: a + b (P1 + P2)/2 - IOP
+        a, b = e["coefficients"]["pressure_offset"], e["coefficients"]["pressure_slope"]
+        error = [a + b * (p1 + p2) / 2 - iop for iop, p1, p2 in zip(e["IOP"], e["P1_raw"],
+                                                                    e["P2_raw"])]
+        assert e["max_error_mmHg"] == pytest.approx(max(abs(x) for x in error))
