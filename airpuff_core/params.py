@@ -216,6 +216,11 @@ PARAMETERS: dict[str, ParamSpec] = {
            "which removes the make-up's lag and its mean pressure error growing with c^2 (0: "
            "off; docs/model.md section 11)", low_inc=True,
            si=("wall_drift_feedforward_s", 1e-3)),
+        _p("wall_give_speed", "m/s", 0.0, 0.0, 1500.0,
+           "speed c_g that sets the return time of the compliant walls' transmitted give, "
+           "tau = 0.1 ms c_g / c (a fixed acoustic length c_g 0.1 ms): the give under the slow "
+           "flow's wall pressure then offsets the fluid's mean pressure by an amount that does "
+           "not grow with c (0: tau = 0.1 ms; docs/model.md section 11)", low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories",
            si=("output_interval_s", 1e-3)),
         _p("cfl", "1", 0.6, 0.0, 0.6,

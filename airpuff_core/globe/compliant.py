@@ -90,7 +90,7 @@ class CompliantWall:
     """
 
     def __init__(self, x, y, wall_nodes, x_c, x_l, rigidity_per_m3, p0, rho0, mass, gamma,
-                 drift_rate_time=0.0):
+                 drift_rate_time=0.0, give_speed=0.0):
         self.nodes = np.asarray(wall_nodes)
         self.weight, self.pressure_weight = wall_weights(x[self.nodes], x_c, x_l)
         self.y0 = y[self.nodes].copy()
@@ -111,9 +111,11 @@ class CompliantWall:
         self.drift_rate_time = drift_rate_time
         self.last_drift_target = None
         self.drift_rate = 0.0
-        # the wall's give under the fluid's acoustic pressure deviation (``commit``)
+        # the wall's give under the fluid's acoustic pressure deviation (``commit``), and the
+        # speed c_g [m/s] of its return time GIVE_RELAXATION_TIME c_g / c (0: that time itself)
         self.transmitted_displacement = 0.0
         self.transmitted_speed = 0.0
+        self.give_speed = give_speed
 
     def wall_state(self, cornea_volume_change, cornea_volume_rate, c, dt):
         """Displacement d [m], its rate [m/s] and the globe's pressure P [Pa] at the end of a step
@@ -195,7 +197,26 @@ class CompliantWall:
             self.drift_speed += self.drift_rate
         self.transmitted_displacement += self.transmitted_speed * dt
         self.transmitted_speed = ((wall_pressure - self.pressure) / (self.rho0 * c)
-                                  - self.transmitted_displacement / GIVE_RELAXATION_TIME)
+                                  - self.transmitted_displacement / self.give_relaxation_time(c))
+
+    def give_relaxation_time(self, c):
+        """The return time tau [s] of the transmitted give at the sound speed c [m/s]:
+        GIVE_RELAXATION_TIME, or with ``give_speed`` c_g > 0 (the run parameter
+        ``wall_give_speed``) GIVE_RELAXATION_TIME c_g / c, the time a wave takes to cross the
+        fixed length c_g GIVE_RELAXATION_TIME.
+
+        Why: in slow motion the fluid's mean wall pressure is not the globe's pressure P (the
+        flow's inertial pressure, dp = p_wall - P, about 0.4 mmHg at the deepest point of an IOP
+        10 puff), and a steady dp holds the give at dV = A_eff tau dp / (rho0 c).  The fluid
+        then holds that much more volume than the law gives it, so its mean pressure stands off
+        P by about rho0 c^2 dV / V_chamber = (c tau A_eff / V_chamber) dp, which grows like c
+        with a fixed tau, and is (c_g GIVE_RELAXATION_TIME A_eff / V_chamber) dp, independent
+        of c, with this scaling.  The dashpot rho0 c is unchanged, and the spring's return is
+        the same fraction of the chamber's acoustic period (which falls like 1/c) at every c
+        (docs/model.md section 11)."""
+        if self.give_speed > 0.0:
+            return GIVE_RELAXATION_TIME * self.give_speed / c
+        return GIVE_RELAXATION_TIME
 
     def impose(self, d, speed, y, vx, vy):
         """Heights [m] and velocities [m/s] of the wall nodes for the displacement d."""
@@ -270,7 +291,8 @@ class CompliantGlobe:
         self.walls = WallPressure(si, geometry, chamber)
         self.wall = CompliantWall(chamber.x, chamber.y, self.walls.nodes, *wall_span(si, geometry),
                                   si.ocular_rigidity_per_m3, si.p0_Pa, si.rho_fluid, mass,
-                                  si.tait_gamma, si.wall_drift_feedforward_s)
+                                  si.tait_gamma, si.wall_drift_feedforward_s,
+                                  si.wall_give_speed)
         self._trial = None
 
     def start(self, fluid_volume, chamber_volume):

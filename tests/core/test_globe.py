@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from airpuff_core import RunParams
-from airpuff_core.globe.compliant import (DRIFT_RELAXATION_TIME, CompliantWall,
+from airpuff_core.globe.compliant import (DRIFT_RELAXATION_TIME, GIVE_RELAXATION_TIME,
+                                          CompliantWall,
                                           enclosed_volume_rate, friedenwald_pressure, swept_area,
                                           tait_density)
 from airpuff_core.kernels.membrane import cornea_polygon_volume
@@ -136,11 +137,12 @@ def test_clinical_preset_does_not_depend_on_the_sound_speed(clinical_paper_resul
         assert abs(fast[name] - base[name]) < tolerance, (name, base[name], fast[name])
 
 
-def _wall(c, drift_rate_time=0.0):
+def _wall(c, drift_rate_time=0.0, give_speed=0.0):
     x_c, x_l = 2.04e-3 * math.sin(math.pi / 3), 7e-3 * math.sin(math.pi / 3)
     x = np.linspace(0.0, x_l, 20)
     return CompliantWall(x, np.zeros(20), np.arange(20), x_c, x_l, 0.0126 / UL_M3,
-                         16 * MMHG_PA, 1000.0, np.full(20, 1e-9), 7.0, drift_rate_time)
+                         16 * MMHG_PA, 1000.0, np.full(20, 1e-9), 7.0, drift_rate_time,
+                         give_speed)
 
 
 @pytest.mark.parametrize("drift_rate_time", [0.0, 0.1e-3])
@@ -190,3 +192,61 @@ def test_transmitted_give_absorbs_acoustic_waves_and_keeps_the_law():
         steady.commit((0.0, 0.0, P), 0.0, 0.0, dt, c, P + 100.0)
     assert steady.transmitted_displacement == pytest.approx(
         DRIFT_RELAXATION_TIME * 100.0 / (1000.0 * c), rel=1e-3)
+
+
+def _steady_give(c, give_speed, dp, dt=1e-7):
+    """The give of a wall held under a steady deviation dp [Pa] for 20 of its return times."""
+    wall = _wall(c, give_speed=give_speed)
+    P = wall.pressure
+    for _ in range(int(round(20 * wall.give_relaxation_time(c) / dt))):
+        wall.commit((0.0, 0.0, P), 0.0, 0.0, dt, c, P + dp)
+    return wall
+
+
+@pytest.mark.parametrize("c", [20.0, 40.0, 80.0])
+def test_give_scaled_with_c_offsets_the_mean_pressure_independently_of_c(c):
+    """``wall_give_speed`` c_g: the give returns within tau = GIVE_RELAXATION_TIME c_g / c, so a
+    steady deviation dp (the slow flow's inertial wall pressure) holds it at
+    dV = A_eff tau dp / (rho0 c), and the fluid's mean pressure error rho0 c^2 dV / V_chamber
+    is c_g GIVE_RELAXATION_TIME A_eff dp / V_chamber at every c (docs/model.md section 11);
+    with the fixed tau it grows like c."""
+    rho0, dp, c_g = 1000.0, 50.0, 15.0
+    wall = _steady_give(c, c_g, dp)
+    tau = GIVE_RELAXATION_TIME * c_g / c
+    assert wall.give_relaxation_time(c) == pytest.approx(tau, rel=1e-12)
+    volume = wall.area * wall.transmitted_displacement
+    assert volume == pytest.approx(wall.area * tau * dp / (rho0 * c), rel=1e-3)
+    assert rho0 * c * c * volume == pytest.approx(
+        c_g * GIVE_RELAXATION_TIME * wall.area * dp, rel=1e-3)
+    fixed = _steady_give(c, 0.0, dp)
+    assert rho0 * c * c * wall.area * fixed.transmitted_displacement == pytest.approx(
+        c * GIVE_RELAXATION_TIME * wall.area * dp, rel=1e-3)
+
+
+def test_give_scaled_with_c_still_absorbs_acoustic_waves():
+    """With ``wall_give_speed`` the give keeps its dashpot rho0 c: over whole cycles of an
+    acoustic deviation the fluid loses the work int dp A_eff du > 0, the dashpot's dissipation
+    int rho0 c u^2 A_eff dt plus what the spring (stiffness rho0 c / tau) holds at the end, and
+    a mode whose frequency grows with c meets the same fraction of its period in tau at every c:
+    the fraction of the work absorbed per cycle is the same at c and 2c."""
+    absorbed = []
+    for c in (20.0, 40.0):
+        dt = 1e-7 * 20.0 / c
+        wall = _wall(c, give_speed=15.0)
+        P = wall.pressure
+        f = 5e3 * c / 20.0  # Hz, the chamber's acoustic ringing, its frequency ~ c
+        n = int(round(20 / f / dt))
+        work = dissipated = 0.0
+        for k in range(n):
+            dp = 100.0 * math.sin(2 * math.pi * f * k * dt)
+            wall.commit((wall.displacement, wall.speed, P), 0.0, 0.0, dt, c, P + dp)
+            speed = wall.transmitted_speed
+            work += dp * wall.area * speed * dt
+            dissipated += 1000.0 * c * speed * speed * wall.area * dt
+        stored = (0.5 * 1000.0 * c / wall.give_relaxation_time(c) * wall.area
+                  * wall.transmitted_displacement ** 2)
+        assert work > 0.0
+        assert work == pytest.approx(dissipated + stored, rel=0.02)
+        # one cycle's work over a lone dashpot's, dp^2 A_eff / (2 rho0 c f)
+        absorbed.append((work / 20) / (100.0 ** 2 * wall.area / (2 * 1000.0 * c * f)))
+    assert absorbed[1] == pytest.approx(absorbed[0], rel=0.02)
