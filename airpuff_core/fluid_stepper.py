@@ -14,7 +14,9 @@ density ``rho`` [kg/m^3] of fixed-mass nodes) and a trial state at t^{n+1} in wo
    for the nodes that are not on the cornea; HV(f) = gamma c h^5 H f is the stabilising
    hyperviscosity, H = L^3 (L the Brookshaw Laplacian) or K^* L K (K its linearly consistent
    form) by the option ``hyperviscosity_operator`` (docs/model.md section 4), integrated by
-   Runge-Kutta-Legendre super-steps;
+   Runge-Kutta-Legendre super-steps; with ``hyperviscosity_interval`` N > 1, only every N-th
+   step, over the time since its last application (Lie splitting with a step of N fluid
+   steps), and HV = 0 in the steps between;
 2. in each Dirichlet-Neumann iteration: the cornea's state imposed on the interface nodes
    (``impose_cornea``), then rho^{n+1} = rho^{n+1/2} - dt/2 rho^{n+1/2} div^{n+1} v^{n+1}
    (``new_density``) and the interface pressure of eq. (5) (``interface_pressure_change``);
@@ -58,10 +60,12 @@ class FluidStepper:
     iteration, instead of only what the moving cornea changes: the same answers, slower (a check
     of the reuse).  ``strain_limit``: the largest strain max |F - I| a kept operator is mapped
     across before it is rebuilt (module docstring); 0 builds every operator at its positions.
+    ``hyperviscosity_interval``: fluid steps per application of the hyperviscosity (module
+    docstring; 1: every step).
     """
 
     def __init__(self, si, chamber, hyperviscosity_operator: str, reuse: bool = True,
-                 strain_limit: float = STRAIN_LIMIT):
+                 strain_limit: float = STRAIN_LIMIT, hyperviscosity_interval: int = 1):
         ch = chamber
         n = ch.n
         self.rho0, self.p0, self.gamma, self.mu = si.rho_fluid, si.p0_Pa, si.tait_gamma, si.mu
@@ -119,6 +123,9 @@ class FluidStepper:
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self.last_hv_substeps = 0
+        self.hv_interval = int(hyperviscosity_interval)
+        self._hv_steps = 0  # steps since the hyperviscosity's last application
+        self._hv_span = 0.0  # their time [s], over which its next application integrates
         # the velocity's divergence damped (docs/model.md section 4, issue 25)
         self.divergence_damping = (
             DivergenceDamping(si.hyperviscosity_divergence, ch.h, self.pinned_vx, self.pinned_vy)
@@ -191,16 +198,23 @@ class FluidStepper:
         integrated over the step by Runge-Kutta-Legendre super-steps (``kernels/hyperviscosity.py``:
         K super-steps of s stages cover K (s^2 + s)/2 forward-Euler steps of
         ``dt_hyperviscous``), and its increments, divided by dt, enter the predictor as
-        rates."""
+        rates.  With ``hv_interval`` N > 1 it is integrated only at every N-th step, over the
+        span of the N steps up to this one's end, and is zero in the others."""
         w = self.work
-        if gamma <= 0:
+        self._hv_steps += 1
+        self._hv_span += dt
+        if gamma <= 0 or self._hv_steps < self.hv_interval:
             w["hv_rho"][:] = 0.0
             w["hv_vx"][:] = 0.0
             w["hv_vy"][:] = 0.0
+            self.last_hv_substeps = 0
             self._divergence_damping_rates(dt, c)
             return
+        span = self._hv_span  # dt itself with an interval of 1 (0.0 + dt, exact)
+        self._hv_steps = 0
+        self._hv_span = 0.0
         scale = gamma * self.density_hyperviscosity_speed(c) * self.hv_scale_unit
-        supersteps, stages = legendre_plan(dt / dt_hyperviscous)
+        supersteps, stages = legendre_plan(span / dt_hyperviscous)
         self.last_hv_substeps = supersteps * stages  # applications of the operator
         source = self._rho_source
         if self.hv_density_speed > 0:
@@ -211,7 +225,7 @@ class FluidStepper:
         hyperviscous_flow_increments(self.rho, self.vx, self.vy, self.pinned_vx, self.pinned_vy,
                                      *self.ops_n.hyperviscosity_args(),
                                      self.hv_consistent_density, self.hv_consistent_velocity,
-                                     scale, self.velocity_hyperviscosity_factor(c), source, dt,
+                                     scale, self.velocity_hyperviscosity_factor(c), source, span,
                                      stages, supersteps, chunks(self.x.shape[0]),
                                      *self._hv_work, w["hv_rho"], w["hv_vx"], w["hv_vy"])
         w["hv_rho"] /= dt

@@ -337,6 +337,9 @@ SWEPT = ("E0", "IOP", "thickness", "pmax")
 # Integer solver controls (not physical parameters).
 INT_PARAMETERS = {
     "max_coupling_iterations": (30, 2, 1000, "cap on Dirichlet-Neumann iterations per step"),
+    "hyperviscosity_interval": (1, 1, 16, "fluid steps per application of the hyperviscosity, "
+                                "each integrating it over the time since the last (1: every "
+                                "step; docs/model.md section 4)"),
 }
 
 
