@@ -2,6 +2,7 @@
 
     python -m benchmarks.interleaved REF run [coarse|paper|fine] [--model paper|clinical]
                                       [--repeat N] [--threads N] [--set NAME=VALUE ...]
+                                      [--new-set NAME=VALUE ...]
     python -m benchmarks.interleaved REF mfpm [--rounds N] [--threads N]
 
 REF is a git revision (``main``, a commit); its ``airpuff_core`` is exported with ``git archive``
@@ -17,7 +18,9 @@ code that the machine's speed of the moment cancels out of (largely), comparable
 ``--threads`` (default 1) sets the threads of this tree's kernels (``airpuff_core/threads.py``);
 a revision from before them runs on one thread whatever it says.  ``--set NAME=VALUE``
 (repeatable) sets a numeric run parameter of both codes' runs, e.g. ``--set
-hyperviscosity_divergence=0.5``.
+hyperviscosity_divergence=0.5``; ``--new-set NAME=VALUE`` one of this tree's runs only, e.g. an
+option against the same code without it: ``python -m benchmarks.interleaved HEAD run paper
+--model clinical --new-set hyperviscosity_interval=2``.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from airpuff_core.params import PARAMETERS
+from airpuff_core.params import INT_PARAMETERS, PARAMETERS
 from benchmarks.yardstick import yardstick_data, yardstick_seconds
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -59,10 +62,12 @@ def import_revision(ref: str, into: Path):
     return module
 
 
-def compare_runs(old, resolution, repeat, threads=1, model="paper", settings=None):
+def compare_runs(old, resolution, repeat, threads=1, model="paper", settings=None,
+                 new_settings=None):
     """``repeat`` pairs of runs (old, new) of the ``model`` preset at ``resolution`` with the
-    run parameters ``settings`` (name -> value); returns the figures printed: per code the wall
-    and CPU times [s] and the yardstick ratios."""
+    run parameters ``settings`` (name -> value), and ``new_settings`` in the new code's runs
+    only; returns the figures printed: per code the wall and CPU times [s] and the yardstick
+    ratios."""
     settings = settings or {}
     import airpuff_core as new
     walls = {"old": [], "new": []}
@@ -70,16 +75,17 @@ def compare_runs(old, resolution, repeat, threads=1, model="paper", settings=Non
     ratios = {"old": [], "new": []}  # wall time / yardstick
     # this tree's runs on ``threads`` threads; an older revision's on one, whatever it says
     options = {old: {}, new: {"threads": threads}}
+    run_settings = {old: settings, new: {**settings, **(new_settings or {})}}
     for pkg in (old, new):
-        pkg.simulate(pkg.RunParams(resolution=resolution, model=model, **settings,
+        pkg.simulate(pkg.RunParams(resolution=resolution, model=model, **run_settings[pkg],
                                    t_end=0.05), **options[pkg])
     data = yardstick_data()
     stick = yardstick_seconds(data)
     for _ in range(repeat):
         for name, pkg in (("old", old), ("new", new)):
             t0, c0 = time.perf_counter(), time.process_time()
-            r = pkg.simulate(pkg.RunParams(resolution=resolution, model=model, **settings),
-                             **options[pkg])
+            r = pkg.simulate(pkg.RunParams(resolution=resolution, model=model,
+                                           **run_settings[pkg]), **options[pkg])
             walls[name].append(time.perf_counter() - t0)
             cpus[name].append(time.process_time() - c0)
             stick_before, stick = stick, yardstick_seconds(data)
@@ -130,7 +136,7 @@ def compare_mfpm(old, rounds, repeats=200):
 
 
 def interleaved_runs(ref, resolution="paper", repeat=2, threads=1, model="paper",
-                     settings=None):
+                     settings=None, new_settings=None):
     """``compare_runs`` of git revision ``ref`` against this tree (on ``threads`` threads)."""
     from airpuff_core.threads import solver_threads
 
@@ -138,8 +144,30 @@ def interleaved_runs(ref, resolution="paper", repeat=2, threads=1, model="paper"
         old = import_revision(ref, Path(tmp))
         print(f"interleaved runs: old = {ref}, new = this tree; {model} preset, {resolution} "
               f"resolution, {threads} thread(s)"
-              + "".join(f", {k} = {v:g}" for k, v in (settings or {}).items()), flush=True)
-        return compare_runs(old, resolution, repeat, threads, model, settings)
+              + "".join(f", {k} = {v:g}" for k, v in (settings or {}).items())
+              + "".join(f", new code's {k} = {v:g}" for k, v in (new_settings or {}).items()),
+              flush=True)
+        return compare_runs(old, resolution, repeat, threads, model, settings, new_settings)
+
+
+def _settings(ap, flag, items):
+    """{name: number} of the NAME=VALUE ``items`` of ``flag``; a bad one is the parser's error."""
+    settings = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        try:
+            number = float(value)
+        except ValueError:
+            ap.error(f"{flag} {item}: expected NAME=VALUE with a number")
+        if not sep or not name:
+            ap.error(f"{flag} {item}: expected NAME=VALUE with a number")
+        if name not in PARAMETERS and name not in INT_PARAMETERS:
+            ap.error(f"{flag} {item}: no run parameter {name!r}")
+        if name in INT_PARAMETERS and number != int(number):
+            ap.error(f"{flag} {item}: {name} is an integer")
+        settings[name] = int(number) if name in INT_PARAMETERS else number
+    return settings
 
 
 def main(argv=None):
@@ -155,21 +183,14 @@ def main(argv=None):
                     help="threads of this tree's kernels (default 1)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="a numeric run parameter of both codes' runs (repeatable)")
+    ap.add_argument("--new-set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a numeric run parameter of this tree's runs only (repeatable)")
     args = ap.parse_args(argv)
-    settings = {}
-    for item in args.set:
-        name, sep, value = item.partition("=")
-        try:
-            settings[name.strip()] = float(value)
-        except ValueError:
-            ap.error(f"--set {item}: expected NAME=VALUE with a number")
-        if not sep or not name.strip():
-            ap.error(f"--set {item}: expected NAME=VALUE with a number")
-        if name.strip() not in PARAMETERS:
-            ap.error(f"--set {item}: no run parameter {name.strip()!r}")
+    settings = _settings(ap, "--set", args.set)
+    new_settings = _settings(ap, "--new-set", args.new_set)
     if args.what == "run":
         interleaved_runs(args.ref, args.resolution, args.repeat, args.threads, args.model,
-                         settings)
+                         settings, new_settings)
         return
     from airpuff_core.threads import solver_threads
 

@@ -35,6 +35,35 @@ def run(params, limit):
     return result.metrics, result.diagnostics["operator_builds"], time.process_time() - c0
 
 
+def compare(resolution, corners, reference, variants, run, name, count):
+    """Each case's metrics with the option at ``reference`` and their differences at each of
+    ``variants``, ``run(params, value)`` -> (metrics, ``count`` of the run, CPU time [s]); the
+    option is printed as ``name``; then the largest difference of each metric over the cases."""
+    cases = [NORMAL] + (CORNERS if corners else [])
+    simulate(RunParams(model="clinical", resolution=resolution, t_end=0.05), threads=1)
+    worst = {(value, k): 0.0 for value in variants for k, _, _ in METRICS}
+    for case in cases:
+        params = RunParams(model="clinical", resolution=resolution, **case)
+        label = ", ".join(f"{k} {v:g}" for k, v in case.items()) or "normal eye"
+        ref, counted, cpu = run(params, reference)
+        print(f"{label}, {name} {reference:g}: {counted} {count}, CPU {cpu:.1f} s; "
+              + ", ".join(f"{k} {ref[k]:.6f}" for k, _, _ in METRICS), flush=True)
+        for value in variants:
+            metrics, counted, cpu = run(params, value)
+            diffs = []
+            for k, unit, _ in METRICS:
+                d = metrics[k] - ref[k]
+                worst[value, k] = max(worst[value, k], abs(d))
+                diffs.append(f"{k} {d:+.2e} {unit}")
+            print(f"{label}, {name} {value:g}: {counted} {count}, CPU {cpu:.1f} s; "
+                  + ", ".join(diffs), flush=True)
+    for value in variants:
+        print(f"largest difference at {name} {value:g} over {len(cases)} case(s): "
+              + ", ".join(f"{k} {worst[value, k]:.2e} {unit}"
+                          + ("" if tol is None else f" (accuracy {tol:g})")
+                          for k, unit, tol in METRICS), flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", default="paper", choices=("coarse", "paper", "fine"))
@@ -43,29 +72,7 @@ def main(argv=None):
     ap.add_argument("--corners", action="store_true", help="also the four corners")
     args = ap.parse_args(argv)
     limits = [float(v) for v in args.limits.split(",")]
-    cases = [NORMAL] + (CORNERS if args.corners else [])
-    simulate(RunParams(model="clinical", resolution=args.resolution, t_end=0.05), threads=1)
-    worst = {(limit, k): 0.0 for limit in limits for k, _, _ in METRICS}
-    for case in cases:
-        params = RunParams(model="clinical", resolution=args.resolution, **case)
-        label = ", ".join(f"{k} {v:g}" for k, v in case.items()) or "normal eye"
-        ref, builds, cpu = run(params, 0.0)
-        print(f"{label}, strain limit 0: {builds} builds, CPU {cpu:.1f} s; "
-              + ", ".join(f"{k} {ref[k]:.6f}" for k, _, _ in METRICS), flush=True)
-        for limit in limits:
-            metrics, builds, cpu = run(params, limit)
-            diffs = []
-            for k, unit, _ in METRICS:
-                d = metrics[k] - ref[k]
-                worst[limit, k] = max(worst[limit, k], abs(d))
-                diffs.append(f"{k} {d:+.2e} {unit}")
-            print(f"{label}, strain limit {limit:g}: {builds} builds, CPU {cpu:.1f} s; "
-                  + ", ".join(diffs), flush=True)
-    for limit in limits:
-        print(f"largest difference at strain limit {limit:g} over {len(cases)} case(s): "
-              + ", ".join(f"{k} {worst[limit, k]:.2e} {unit}"
-                          + ("" if tol is None else f" (accuracy {tol:g})")
-                          for k, unit, tol in METRICS))
+    compare(args.resolution, args.corners, 0.0, limits, run, "strain limit", "builds")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,45 @@
+"""The check behind the option ``hyperviscosity_interval`` (``fluid_stepper.py``, docs/model.md
+section 4): clinical-preset runs with the hyperviscosity at every fluid step (interval 1, the
+default, the reference) and at every N-th step over the span of the N steps, metrics side by
+side, with the operator's applications per step and the CPU time.
+
+    python -m studies.hyperviscosity_interval                            # paper, normal eye
+    python -m studies.hyperviscosity_interval --intervals 2,3,4 --corners  # and the corners
+
+The cases and the stated accuracy are those of ``studies.operator_strain`` (the normal eye and
+the four corners IOP 10 / 25 mmHg x CCT 0.45 / 0.65 mm; 0.05 mmHg on P1, P2, CH and 0.002 mm on
+DA).  One run is about 7-10 s of one core at paper resolution (quiet machine); run it with
+``nice``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from airpuff_core.solver import simulate
+from studies.operator_strain import compare
+
+
+def run(params, interval):
+    """The run's metrics, hyperviscous applications per step and CPU time [s] with the
+    hyperviscosity every ``interval`` steps."""
+    c0 = time.process_time()
+    result = simulate(params.replace(hyperviscosity_interval=int(interval)), threads=1)
+    applications = f"{result.diagnostics['mean_hyperviscous_substeps']:.2f}"
+    return result.metrics, applications, time.process_time() - c0
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--resolution", default="paper", choices=("coarse", "paper", "fine"))
+    ap.add_argument("--intervals", default="2", help="comma-separated intervals to compare with 1")
+    ap.add_argument("--corners", action="store_true", help="also the four corners")
+    args = ap.parse_args(argv)
+    intervals = [int(v) for v in args.intervals.split(",")]
+    compare(args.resolution, args.corners, 1, intervals, run, "hyperviscosity interval",
+            "hyperviscous applications per step")
+
+
+if __name__ == "__main__":
+    main()
