@@ -5,6 +5,7 @@ side, with the operator's applications per step and the CPU time.
 
     python -m studies.hyperviscosity_interval                            # paper, normal eye
     python -m studies.hyperviscosity_interval --intervals 2,3,4 --corners  # and the corners
+    python -m studies.hyperviscosity_interval --thickness 0.54           # the normal eye's CCT
 
 The cases and the stated accuracy are those of ``studies.operator_strain`` (the normal eye and
 the four corners IOP 10 / 25 mmHg x CCT 0.45 / 0.65 mm; 0.05 mmHg on P1, P2, CH and 0.002 mm on
@@ -35,10 +36,13 @@ def main(argv=None):
     ap.add_argument("--resolution", default="paper", choices=("coarse", "paper", "fine"))
     ap.add_argument("--intervals", default="2", help="comma-separated intervals to compare with 1")
     ap.add_argument("--corners", action="store_true", help="also the four corners")
+    ap.add_argument("--thickness", type=float, default=None,
+                    help="the normal eye's corneal thickness [mm] (default the parameter's)")
     args = ap.parse_args(argv)
     intervals = [int(v) for v in args.intervals.split(",")]
+    normal = {} if args.thickness is None else {"thickness": args.thickness}
     compare(args.resolution, args.corners, 1, intervals, run, "hyperviscosity interval",
-            "hyperviscous applications per step")
+            "hyperviscous applications per step", normal)
 
 
 if __name__ == "__main__":

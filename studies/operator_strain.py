@@ -35,11 +35,12 @@ def run(params, limit):
     return result.metrics, result.diagnostics["operator_builds"], time.process_time() - c0
 
 
-def compare(resolution, corners, reference, variants, run, name, count):
+def compare(resolution, corners, reference, variants, run, name, count, normal=NORMAL):
     """Each case's metrics with the option at ``reference`` and their differences at each of
     ``variants``, ``run(params, value)`` -> (metrics, ``count`` of the run, CPU time [s]); the
-    option is printed as ``name``; then the largest difference of each metric over the cases."""
-    cases = [NORMAL] + (CORNERS if corners else [])
+    option is printed as ``name``; then the largest difference of each metric over the cases
+    (the eye ``normal``, and the corners if ``corners``)."""
+    cases = [normal] + (CORNERS if corners else [])
     simulate(RunParams(model="clinical", resolution=resolution, t_end=0.05), threads=1)
     worst = {(value, k): 0.0 for value in variants for k, _, _ in METRICS}
     for case in cases:
