@@ -6,7 +6,9 @@ t^{n+1} = t^n + dt:
 - ``StepControl`` (``step_control.py``): the sound speed and dt;
 - ``FluidStepper`` (``fluid_stepper.py``): the fluid's predictor, independent of the coupling;
 - ``DirichletNeumann`` (``dirichlet_neumann.py``): from the estimate p^n + dt dp/dt (the last
-  step's rate of change of the interface pressure), the iterations k = 1, 2, ... of
+  step's rate of change of the interface pressure; with ``hyperviscosity_interval`` N, that of
+  the step N steps back, which the hyperviscosity's application treated alike), the iterations
+  k = 1, 2, ... of
   (a) the cornea (``cornea/``, any model of the registry) advanced from its state at t^n with
       the interface pressure going from p^n to the current estimate p^k, and the air pulse
       of the run's instrument (``loads/``) outside, by sub-steps, with its tissue law (``cornea/tissue.py``);
@@ -81,7 +83,10 @@ class CoupledModel:
         N = self.X.shape[0]
         self._cornea_trial = tuple(np.empty(N) for _ in range(4))  # X, Y, VX, VY in iterations
         self._p_interface_n = np.empty(N)  # interface pressure at t^n with this step's c [Pa]
-        self._p_rate = np.zeros(N)  # the last step's (p^{n+1} - p^n) / dt [Pa/s]
+        # (p^{n+1} - p^n) / dt [Pa/s] of the last ``hyperviscosity_interval`` steps, by the
+        # step's place in the hyperviscosity's cycle (one array with the default interval 1)
+        self._p_rates = [np.zeros(N) for _ in range(params.hyperviscosity_interval)]
+        self._step_count = 0
         self._p_start = np.empty(N)  # the coupling's first estimate of p^{n+1} [Pa]
         self.coupling = DirichletNeumann(si.coupling_tol, params.max_coupling_iterations, N)
         self.last_substeps = 0
@@ -159,13 +164,16 @@ class CoupledModel:
             fluid.new_density(dt, t, interface_only=True)
             return fluid.interface_pressure_change(c, P_REF, p_est, p_new)
 
-        # the first estimate: p^n carried along the last step's rate of change, dp/dt
+        # the first estimate: p^n carried along the rate of change, dp/dt, of the last step in
+        # the same place of the hyperviscosity's cycle (the last step with an interval of 1)
+        p_rate = self._p_rates[self._step_count % len(self._p_rates)]
+        self._step_count += 1
         p_start = self._p_start
-        np.multiply(self._p_rate, dt, out=p_start)
+        np.multiply(p_rate, dt, out=p_start)
         p_start += p_interface_n
         self.coupling.iterate(interface_pressure, p_start, t * 1e3)
-        np.subtract(self.coupling.pressure, p_interface_n, out=self._p_rate)
-        self._p_rate /= dt
+        np.subtract(self.coupling.pressure, p_interface_n, out=p_rate)
+        p_rate /= dt
         fluid.new_density(dt, t, interface_only=False)
 
     def commit(self, dt):
@@ -222,7 +230,8 @@ class CoupledModel:
         arrays were set from outside, e.g. by the stability analysis); the coupling's predictor
         starts again from p^n."""
         self.fluid.refresh_derivatives()
-        self._p_rate[:] = 0.0
+        for p_rate in self._p_rates:
+            p_rate[:] = 0.0
 
     # -- quantities of the current state ----------------------------------------------------
     def apex_moment(self):
