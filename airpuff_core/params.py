@@ -58,16 +58,26 @@ def parse_whole(text: str) -> int:
 # cornea that needs more is too soft for the membrane model.
 PRESTRETCH_MAX = 10.0
 
+# The stabilisations that make the clinical preset's results independent of the artificial
+# sound speed (docs/model.md sections 4 and 11, docs/validation.md "The sound speed"): P1, P2
+# within 0.2 mmHg, CH 0.3 mmHg, DA 0.01 mm from c0 = 10 to 40 m/s at IOP 10-25 mmHg.  The paper's
+# model does not need them (its metrics do not move with c) and keeps its published numerics.
+SOUND_SPEED_OPTIONS: dict[str, float] = {
+    "hyperviscosity_speed": 15.0, "hyperviscosity_divergence": 0.5,
+    "hyperviscosity_density_speed": 10.0, "node_shifting": 1.0,
+    "wall_drift_feedforward": 0.1, "wall_give_speed": 15.0,
+}
+
 # The choices each ``model`` preset makes; an option given explicitly overrides its preset.
 MODEL_PRESETS: dict[str, dict[str, Any]] = {
     "paper": {"cornea": "membrane", "globe": "rigid", "ve_g": 0.0, "ve_tau": 10.0,
-              "transverse_shear_modulus": 0.0},
+              "transverse_shear_modulus": 0.0, **{name: 0.0 for name in SOUND_SPEED_OPTIONS}},
     # the shell, the compliant globe, the viscoelasticity that Kling et al. (PLoS ONE 2014,
     # e104904, table 3) fitted to human in-vivo air-puff deformation (docs/model.md section 10),
     # and the transverse shear modulus measured on full-thickness human stroma, 9.48 +- 2.92 kPa
     # (Petsche et al., IOVS 53 (2012) 873; docs/model.md section 13)
     "clinical": {"cornea": "shell", "globe": "compliant", "ve_g": 0.3, "ve_tau": 10.0,
-                 "transverse_shear_modulus": 9.48},
+                 "transverse_shear_modulus": 9.48, **SOUND_SPEED_OPTIONS},
 }
 # the numeric parameters a preset sets: None (not given) until ``RunParams.validate``
 PRESET_PARAMETERS = tuple(name for name in MODEL_PRESETS["clinical"]
@@ -198,29 +208,34 @@ PARAMETERS: dict[str, ParamSpec] = {
            low_inc=True),
         _p("hyperviscosity_speed", "m/s", 0.0, 0.0, 1500.0,
            "speed c_v in the strength gamma c_v h^5 of the hyperviscosity on the velocity, in "
-           "place of the sound speed c (0: c; docs/model.md section 4)", low_inc=True),
+           "place of the sound speed c (0: c; docs/model.md section 4); set by the model preset "
+           "(paper 0, clinical 15)", low_inc=True),
         _p("hyperviscosity_density_speed", "m/s", 0.0, 0.0, 1500.0,
            "speed c_rho in the strength gamma c^2/c_rho h^5 of the hyperviscosity on the "
            "density, in place of gamma c h^5: growing with c^2, it holds the pressure of the "
            "grid-scale density it balances independent of c (0: gamma c h^5; docs/model.md "
-           "section 4)", low_inc=True),
+           "section 4); set by the model preset (paper 0, clinical 10)", low_inc=True),
         _p("hyperviscosity_divergence", "1", 0.0, 0.0, 10.0,
            "strength gamma_div of the damping of the velocity's divergence, a bulk viscosity "
-           "gamma_div c h (0 switches it off; docs/model.md section 4)", low_inc=True),
+           "gamma_div c h (0 switches it off; docs/model.md section 4); set by the "
+           "model preset (paper 0, clinical 0.5)", low_inc=True),
         _p("node_shifting", "1", 0.0, 0.0, 100.0,
            "strength A of the shifting of the fluid nodes towards a regular cloud, each step by "
            "-A h (v_max dt) (grad C - grad C0), C the nodes' kernel-sum concentration (0: off; "
-           "docs/model.md section 4)", low_inc=True),
+           "docs/model.md section 4); set by the model preset (paper 0, clinical 1)",
+           low_inc=True),
         _p("wall_drift_feedforward", "ms", 0.0, 0.0, 10.0,
            "filter time of the compliant walls' feed-forward of the fluid's volume drift rate, "
            "which removes the make-up's lag and its mean pressure error growing with c^2 (0: "
-           "off; docs/model.md section 11)", low_inc=True,
+           "off; docs/model.md section 11); set by the model preset (paper 0, clinical 0.1)",
+           low_inc=True,
            si=("wall_drift_feedforward_s", 1e-3)),
         _p("wall_give_speed", "m/s", 0.0, 0.0, 1500.0,
            "speed c_g that sets the return time of the compliant walls' transmitted give, "
            "tau = 0.1 ms c_g / c (a fixed acoustic length c_g 0.1 ms): the give under the slow "
            "flow's wall pressure then offsets the fluid's mean pressure by an amount that does "
-           "not grow with c (0: tau = 0.1 ms; docs/model.md section 11)", low_inc=True),
+           "not grow with c (0: tau = 0.1 ms; docs/model.md section 11); set by the model "
+           "preset (paper 0, clinical 15)", low_inc=True),
         _p("output_interval", "ms", 0.05, 0.0, 10.0, "interval of the stored time histories",
            si=("output_interval_s", 1e-3)),
         _p("cfl", "1", 0.6, 0.0, 0.6,
