@@ -63,7 +63,8 @@ class CoupledModel:
         self.cornea = cornea_for_run(params, ch.phi_cornea)
         self.fluid = FluidStepper(si, ch, params.hyperviscosity_operator, reuse,
                                   STRAIN_LIMIT if strain_limit is None else strain_limit,
-                                  params.hyperviscosity_interval)
+                                  params.hyperviscosity_interval,
+                                  params.node_shifting_interval)
         self._start_cornea_at_rest()
         self.globe = globe_for_run(params, si, ch, self.X, self.Y, self.fluid.mass)
         self.globe.start(self.fluid.density_volume(), self.chamber_volume())

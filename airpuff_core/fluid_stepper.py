@@ -61,11 +61,13 @@ class FluidStepper:
     of the reuse).  ``strain_limit``: the largest strain max |F - I| a kept operator is mapped
     across before it is rebuilt (module docstring); 0 builds every operator at its positions.
     ``hyperviscosity_interval``: fluid steps per application of the hyperviscosity (module
-    docstring; 1: every step).
+    docstring; 1: every step).  ``node_shifting_interval``: steps per node shift (``commit``;
+    1: every step).
     """
 
     def __init__(self, si, chamber, hyperviscosity_operator: str, reuse: bool = True,
-                 strain_limit: float = STRAIN_LIMIT, hyperviscosity_interval: int = 1):
+                 strain_limit: float = STRAIN_LIMIT, hyperviscosity_interval: int = 1,
+                 node_shifting_interval: int = 1):
         ch = chamber
         n = ch.n
         self.rho0, self.p0, self.gamma, self.mu = si.rho_fluid, si.p0_Pa, si.tait_gamma, si.mu
@@ -133,6 +135,9 @@ class FluidStepper:
         self._div_increments = (np.empty(n), np.empty(n))
         # node shifting towards a regular cloud (``kernels/shifting.py``; 0: off)
         self.shifting = si.node_shifting
+        self.shift_interval = int(node_shifting_interval)
+        self._shift_steps = 0  # steps since the last shift
+        self._shift_span = 0.0  # their time [s], the next shift's dt
         if self.shifting > 0:
             self.h = ch.h
             self.area = ch.area
@@ -299,7 +304,9 @@ class FluidStepper:
 
     def commit(self, dt=0.0):
         """The trial state becomes the state at t^{n+1} (buffers swapped, not copied); with
-        ``node_shifting`` its nodes are then shifted (``shift``) after a step of dt [s]."""
+        ``node_shifting`` its nodes are then shifted (``shift``) after a step of dt [s], or with
+        ``node_shifting_interval`` N > 1 after every N-th step, by the shift of the N steps'
+        time together."""
         w = self.work
         self.x, w["x_new"] = w["x_new"], self.x
         self.y, w["y_new"] = w["y_new"], self.y
@@ -311,7 +318,12 @@ class FluidStepper:
         self.ops_n, self.ops_new = self.ops_new, self.ops_n
         self.strain = self.strain_new
         if self.shifting > 0 and dt > 0:
-            self.shift(dt)
+            self._shift_steps += 1
+            self._shift_span += dt
+            if self._shift_steps >= self.shift_interval:
+                self.shift(self._shift_span, self._shift_steps)
+                self._shift_steps = 0
+                self._shift_span = 0.0
         if self.lagrangian and not self.strain <= self.strain_limit:  # also NaN
             self.refresh_derivatives()  # the operator rebuilt at the new state
 
@@ -320,17 +332,18 @@ class FluidStepper:
         concentration_gradient(self.x, self.y, self.h, self.area, KAPPA, start, nbr, sign, count,
                                self._grad_c)
 
-    def shift(self, dt):
-        """Node shifting after a step of dt [s] (``kernels/shifting.py``): the nodes moved down
-        the gradient of their concentration by A h (v_max dt) (grad C - grad C^0), the density
-        and velocities carried to the new positions by their gradients, and the velocity
-        derivatives at t^n re-evaluated there."""
+    def shift(self, dt, steps=1):
+        """Node shifting after ``steps`` steps of dt [s] together (``kernels/shifting.py``): the
+        nodes moved down the gradient of their concentration by A h (v_max dt) (grad C -
+        grad C^0), at most ``steps`` SHIFT_LIMIT h, the density and velocities carried to the
+        new positions by their gradients, and the velocity derivatives at t^n re-evaluated
+        there."""
         self._concentration_gradient()
         dx, dy = self._shift
         start, nbr, _, count, _ = self.ops_n.laplacian_args()
         shift_displacements(self.x, self.kind, self.h, self._grad_c, self._grad_c_initial,
-                            self.shifting * self.max_speed() * dt, SHIFT_LIMIT, start, nbr, count,
-                            dx, dy)
+                            self.shifting * self.max_speed() * dt, SHIFT_LIMIT * steps, start, nbr,
+                            count, dx, dy)
         if self.lagrangian:
             self.ops_n.mapped_derivatives(self.x, self.y, self.rho[np.newaxis], PRESSURE_PARITY,
                                           self._grad_rho)

@@ -15,6 +15,8 @@ wall time (``benchmarks/yardstick.py``).  Parts, in the order of a step:
   all nodes or at the interface nodes in the coupling iterations;
 - coupling iterations: the Dirichlet-Neumann iterations, split into the cornea's sub-steps
   (``advance``), the globe's walls (``impose``), and the rest of an iteration (Python, the density and pressure at the interface);
+- the sound-speed stabilisations of the clinical preset: the divergence damping's assembly
+  (at each build of the operator) and sub-steps, the node shifting (in the commit);
 - observers: the energy budget, the blow-up checks, the recorder (each shown apart);
 - the rest: the predictor's other kernels, the commit, Python's orchestration.
 """
@@ -29,6 +31,7 @@ from airpuff_core import RunParams
 from airpuff_core.solver import simulate
 from airpuff_core.coupling import CoupledModel
 from airpuff_core.dirichlet_neumann import DirichletNeumann
+from airpuff_core.divergence_damping import DivergenceDamping
 from airpuff_core.fluid import Operators
 from airpuff_core.fluid_stepper import FluidStepper
 from airpuff_core.step_control import StepControl
@@ -101,6 +104,9 @@ def instrument():
         (compliant.CompliantGlobe, "impose", "coupling: globe walls", None),
         (rigid.RigidGlobe, "impose", "coupling: globe walls", None),
         (CoupledModel, "commit", "commit", None),
+        (FluidStepper, "shift", "node shifting", None),
+        (DivergenceDamping, "assemble", "divergence damping: assembly (at each build)", None),
+        (DivergenceDamping, "increments", "divergence damping: sub-steps", None),
     ]
     wrapped += [(cls, "advance", "coupling: cornea sub-steps", None) for cls in cornea_classes]
     from airpuff_core import blowup, energy, recorder

@@ -1,0 +1,86 @@
+"""The option ``node_shifting_interval`` (fluid_stepper.py; docs/model.md section 4, "Node
+shifting"): with N > 1 the nodes are shifted after every N-th step only, by the shift of the N
+steps' time together (at most N times the per-step limit).
+
+Checked: a displaced node moves back by up to N times the per-step limit and linear fields are
+carried exactly (a linear field's gradient is exact); the shifts fall on every N-th step and
+take the summed dt; a coarse run keeps its mass and volume, and a coarse clinical run its
+metrics within the stated accuracy of a clinical point (issue 31) of the run shifted at every
+step."""
+
+import math
+
+import numpy as np
+import pytest
+
+from airpuff_core import RunParams, simulate
+from airpuff_core.coupling import CoupledModel
+from airpuff_core.fluid_stepper import SHIFT_LIMIT, FluidStepper
+from airpuff_core.kernels.nodes import INTERIOR
+
+
+def test_a_shift_of_n_steps_moves_up_to_n_limits_and_carries_linear_fields():
+    model = CoupledModel(RunParams(resolution="coarse", node_shifting=1.0,
+                                   node_shifting_interval=3))
+    fluid = model.fluid
+    x, y, kind = fluid.x, fluid.y, fluid.kind
+    inside = np.flatnonzero(kind == INTERIOR)
+    centre = np.array([np.median(x[inside]), np.median(y[inside])])
+    i = inside[np.argmin(np.hypot(x[inside] - centre[0], y[inside] - centre[1]))]
+    h = fluid.h[i]
+    fluid.x[i] += 0.3 * h
+    fluid.y[i] += 0.2 * h
+    slope_rho, slope_v = 5e3, 10.0  # kg/m^4, 1/s
+    fluid.rho[:] = fluid.rho0 + slope_rho * fluid.y
+    fluid.vy[:] = 0.2 + slope_v * fluid.x
+    fluid.vx[:] = 0.0
+    fluid.refresh_derivatives()
+    x0, y0 = fluid.x.copy(), fluid.y.copy()
+    fluid.shift(2.0 * h / fluid.max_speed(), steps=3)  # a request far above the limit
+    moved = np.hypot(fluid.x - x0, fluid.y - y0)
+    assert 2.0 * SHIFT_LIMIT * h < moved[i] <= 3.0 * SHIFT_LIMIT * h * (1 + 1e-12)
+    np.testing.assert_allclose(fluid.rho, fluid.rho0 + slope_rho * fluid.y, rtol=1e-12)
+    np.testing.assert_allclose(fluid.vy, 0.2 + slope_v * fluid.x, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("interval", [1, 3])
+def test_the_shifts_fall_on_every_nth_step_with_the_summed_time(interval, monkeypatch):
+    calls = []
+    shift = FluidStepper.shift
+
+    def observed(self, dt, steps=1):
+        calls.append((dt, steps))
+        return shift(self, dt, steps)
+
+    monkeypatch.setattr(FluidStepper, "shift", observed)
+    model = CoupledModel(RunParams(resolution="coarse", model="clinical", t_end=0.2,
+                                   node_shifting_interval=interval))
+    dts = []
+    for _ in range(7):
+        dts.append(model.step())
+    assert [steps for _, steps in calls] == [interval] * (7 // interval)
+    for k, (dt, _) in enumerate(calls):
+        assert dt == pytest.approx(sum(dts[k * interval:(k + 1) * interval]), rel=1e-15)
+
+
+def test_an_interval_of_four_keeps_the_clinical_metrics():
+    base = RunParams(resolution="coarse", model="clinical")
+    every = simulate(base, threads=1)
+    fourth = simulate(base.replace(node_shifting_interval=4), threads=1)
+    for name in ("P1", "P2", "CH"):
+        assert abs(fourth.metrics[name] - every.metrics[name]) < 0.05, name
+    assert abs(fourth.metrics["DA"] - every.metrics["DA"]) < 0.002
+
+
+def test_an_interval_of_four_conserves_mass_and_volume():
+    """As ``test_node_shifting.test_a_run_with_shifting_conserves_mass_and_volume`` (the rigid
+    chamber of the paper preset, whose volume is exact), with the shifts every fourth step."""
+    fourth = simulate(RunParams(resolution="coarse", node_shifting=1.0,
+                                node_shifting_interval=4), threads=1)
+    ds = fourth.to_dataset()
+    R, r, a = 7e-3, 2.04e-3, math.radians(60)
+    exact_volume = 2 * math.pi / 3 * (R ** 3 - r ** 3) * (1 - math.cos(a))
+    assert ds.attrs["solver_mass_kg"] == pytest.approx(1000.0 * exact_volume, rel=1e-12)
+    vol = ds.chamber_volume.values
+    change = np.max(np.abs(vol - vol[0])) / vol[0]
+    assert ds.attrs["solver_max_volume_mismatch"] < 0.1 * change
