@@ -150,7 +150,7 @@ def interleaved_runs(ref, resolution="paper", repeat=2, threads=1, model="paper"
         return compare_runs(old, resolution, repeat, threads, model, settings, new_settings)
 
 
-def _settings(ap, flag, items):
+def parse_settings(ap, flag, items):
     """{name: number} of the NAME=VALUE ``items`` of ``flag``; a bad one is the parser's error."""
     settings = {}
     for item in items:
@@ -186,8 +186,8 @@ def main(argv=None):
     ap.add_argument("--new-set", action="append", default=[], metavar="NAME=VALUE",
                     help="a numeric run parameter of this tree's runs only (repeatable)")
     args = ap.parse_args(argv)
-    settings = _settings(ap, "--set", args.set)
-    new_settings = _settings(ap, "--new-set", args.new_set)
+    settings = parse_settings(ap, "--set", args.set)
+    new_settings = parse_settings(ap, "--new-set", args.new_set)
     if args.what == "run":
         interleaved_runs(args.ref, args.resolution, args.repeat, args.threads, args.model,
                          settings, new_settings)

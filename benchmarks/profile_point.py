@@ -1,6 +1,7 @@
 """Where the time of one run goes, by part of the step (one core):
 
     python -m benchmarks.profile_point [resolution] [--model paper|clinical] [--repeat N]
+                                       [--set NAME=VALUE ...]
 
 The parts' methods are wrapped by timers (``time.perf_counter`` around each call, about 1 us a
 call, small against the parts), the run is made ``--repeat`` times (the kernels compiled or
@@ -35,6 +36,7 @@ from airpuff_core.divergence_damping import DivergenceDamping
 from airpuff_core.fluid import Operators
 from airpuff_core.fluid_stepper import FluidStepper
 from airpuff_core.step_control import StepControl
+from benchmarks.interleaved import parse_settings
 from benchmarks.yardstick import yardstick_data, yardstick_seconds
 
 
@@ -137,8 +139,11 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=2, help="runs (the fastest is shown)")
     ap.add_argument("--strain-limit", type=float, default=None,
                     help="the fluid operator's strain limit (FluidStepper; default the solver's)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a numeric run parameter, e.g. node_shifting_interval=8 (repeatable)")
     args = ap.parse_args(argv)
-    params = RunParams(resolution=args.resolution, model=args.model)
+    params = RunParams(resolution=args.resolution, model=args.model,
+                       **parse_settings(ap, "--set", args.set))
     simulate(params.replace(t_end=0.05), threads=1)  # compile or load the kernels
     timers, restore = instrument()
     data = yardstick_data()
