@@ -16,7 +16,7 @@ eye, IOP 16; c0 = 10, 20, 40 each) with the options that make the preset indepen
     python -m studies.clinical_sound_speed --out soundspeed --fine-IOP 16 --workers 2 \
         --set hyperviscosity_speed=15 --set hyperviscosity_divergence=0.5 \
         --set wall_drift_feedforward=0.1 --set hyperviscosity_density_speed=10 \
-        --set node_shifting=1
+        --set node_shifting=1 --set wall_give_speed=15
     python -m studies.clinical_sound_speed --out soundspeed_paper  # the preset, paper only
 
 Every finished run is kept as <out>/<name>.nc; --reuse reads back a run whose file has the same
