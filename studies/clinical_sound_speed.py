@@ -10,14 +10,11 @@ curvature at A2 (``p2_conditioning``), and per IOP the largest change of each me
 Tolerances (docs/validation.md): P1, P2 0.2 mmHg, CH 0.3 mmHg, DA 0.01 mm.
 
 The whole matrix of issue 25 (paper resolution at IOP 10, 16, 25; fine resolution for the normal
-eye, IOP 16; c0 = 10, 20, 40 each) with the options that make the preset independent of c
-(docs/validation.md, "The sound speed (issue 25)"), on two processes:
+eye, IOP 16; c0 = 10, 20, 40 each), on two processes (the preset sets the six stabilisations
+that make it independent of c, ``SOUND_SPEED_OPTIONS`` of airpuff_core/params.py; ``--set
+NAME=0`` switches one off):
 
-    python -m studies.clinical_sound_speed --out soundspeed --fine-IOP 16 --workers 2 \
-        --set hyperviscosity_speed=15 --set hyperviscosity_divergence=0.5 \
-        --set wall_drift_feedforward=0.1 --set hyperviscosity_density_speed=10 \
-        --set node_shifting=1 --set wall_give_speed=15
-    python -m studies.clinical_sound_speed --out soundspeed_paper  # the preset, paper only
+    python -m studies.clinical_sound_speed --out soundspeed --fine-IOP 16 --workers 2
 
 Every finished run is kept as <out>/<name>.nc; --reuse reads back a run whose file has the same
 parameters.  A failed run (blow-up) is a row with its message.  The table (with the model

@@ -44,8 +44,7 @@ def coarse_run(tmp_path_factory):
 @pytest.fixture(scope="session")
 def clinical_paper_result():
     """One run of the clinical preset's normal eye (CCT 0.54 mm, IOP 16 mmHg) at paper
-    resolution in this process, shared by the tests that need such a run (its energy budget,
-    the base of the sound-speed check)."""
+    resolution in this process, shared by the tests that need such a run (its energy budget)."""
     from airpuff_core import RunParams, simulate
 
     return simulate(RunParams(model="clinical", thickness=0.54, resolution="paper"))

@@ -122,21 +122,6 @@ def test_doubling_the_sound_speed_barely_moves_p1_p2():
     assert abs(fast["P2"] - base["P2"]) < 0.2
 
 
-@pytest.mark.slow
-def test_clinical_preset_does_not_depend_on_the_sound_speed(clinical_paper_result):
-    """The clinical preset (normal eye) at paper resolution: doubling c0 and c_slope moves P1
-    and P2 by less than 0.2 mmHg, CH by less than 0.3 mmHg and DA by less than 0.01 mm (the
-    tolerances of docs/validation.md; measured 0.02, 0.08, 0.06 mmHg and 0.005 mm; before the
-    walls transmitted acoustic waves the run at c0 = 20 blew up at 25.6 ms).  At c0 = 40 P2 still
-    moves by 0.36 mmHg (docs/validation.md, "The sound speed")."""
-    params = RunParams(model="clinical", thickness=0.54, resolution="paper")
-    assert clinical_paper_result.params == params
-    base = clinical_paper_result.metrics
-    fast = simulate(params.replace(c0=20.0, c_slope=40.0)).metrics
-    for name, tolerance in (("P1", 0.2), ("P2", 0.2), ("CH", 0.3), ("DA", 0.01)):
-        assert abs(fast[name] - base[name]) < tolerance, (name, base[name], fast[name])
-
-
 def _wall(c, drift_rate_time=0.0, give_speed=0.0):
     x_c, x_l = 2.04e-3 * math.sin(math.pi / 3), 7e-3 * math.sin(math.pi / 3)
     x = np.linspace(0.0, x_l, 20)
