@@ -689,6 +689,9 @@ def calibration_lines(evaluations: list[dict], summary: dict) -> list[str]:
         e = final[-1]
         text += (f". At the fitted values: P_cal = {e['coefficients']['pressure_offset']:.4f} + "
                  f"{e['value']:.5f} P, IOPg_cal - IOP max {e['max_error_mmHg']:.3f} mmHg")
+        if e["max_error_mmHg"] > CALIBRATION_AIM:
+            text += (f" (MISSES {CALIBRATION_AIM:g} mmHg: the readings fitted there are not on "
+                     f"Goldmann's scale, so neither is the fit)")
     return [text + ".", ""]
 
 

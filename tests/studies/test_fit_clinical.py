@@ -87,6 +87,22 @@ def test_a_step_across_the_target_is_bracketed_and_reported_as_a_jump():
     assert smooth.jump_ratio() < fc.JUMP_RATIO
 
 
+def test_calibration_lines_name_the_misses_and_the_calibration_at_the_fit():
+    def made(shear, ratio, slope, error):
+        return {"response": "calibration_slope", fc.SHEAR.name: shear, fc.RATIO.name: ratio,
+                "value": slope, "max_error_mmHg": error,
+                "coefficients": {"pressure_offset": -5.0, "pressure_slope": slope}}
+
+    evaluations = [made(9.48, 0.3, 0.77, 0.2), made(12.0, 0.5, 0.9, 1.3),
+                   {"response": "CH", fc.SHEAR.name: 12.0, fc.RATIO.name: 0.5, "value": 10.6}]
+    at_good = {"fitted": {fc.SHEAR.name: {"value": 9.48}, fc.RATIO.name: {"value": 0.3}}}
+    at_bad = {"fitted": {fc.SHEAR.name: {"value": 12.0}, fc.RATIO.name: {"value": 0.5}}}
+    good = fc.calibration_lines(evaluations, at_good)[0]
+    assert "Calibrations made: 2" in good and "1 missed 0.3 mmHg" in good
+    assert "0.77000 P" in good and "MISSES" not in good
+    assert "MISSES 0.3 mmHg" in fc.calibration_lines(evaluations, at_bad)[0]
+
+
 def test_sensitivities_of_a_plane_are_its_coefficients():
     def slope(x, y):
         return 1.0 + 0.25 * x + 3.0 * y
