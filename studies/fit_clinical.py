@@ -175,16 +175,24 @@ class Solve:
         return min(pairs, key=lambda ab: ab[1][0] - ab[0][0]) if pairs else None
 
     def jump_ratio(self) -> float | None:
-        """How much faster the residual changes across the final bracket than across every
-        evaluation: the secant slope over the bracket divided by that over the outermost
+        """How much faster the residual changes across the final bracket than elsewhere: the
+        secant slope over the bracket divided by the median secant slope of the other pairs of
+        neighbouring evaluations (in x), or, with no other pair, by that over the outermost
         evaluations.  About 1 for a smooth response; large (say > 10) where the response jumps
         across the target inside the bracket, so that no value in it meets the target."""
         bracket = self.bracket()
-        (x_lo, f_lo), (x_hi, f_hi) = min(self.history), max(self.history)
-        if bracket is None or x_hi == x_lo or f_hi == f_lo:
+        points = sorted(set(self.history))
+        if bracket is None or len(points) < 3:
             return None
         (xa, fa), (xb, fb) = bracket
-        return abs((fb - fa) / (xb - xa)) / abs((f_hi - f_lo) / (x_hi - x_lo))
+        across = abs((fb - fa) / (xb - xa))
+        others = [abs((f1 - f0) / (x1 - x0)) for (x0, f0), (x1, f1) in zip(points, points[1:])
+                  if x1 > x0 and not (x0 >= xa and x1 <= xb)]
+        if not others:
+            (x0, f0), (x1, f1) = points[0], points[-1]
+            others = [abs((f1 - f0) / (x1 - x0))]
+        reference = float(np.median(others))
+        return across / reference if reference > 0 else math.inf
 
 
 def solve_monotone(residual: Callable[[float], float], low: float, high: float, x0: float,
