@@ -667,8 +667,8 @@ def solve_lines(solves: list[dict]) -> list[str]:
             ratio = s.get("jump_ratio")
             jumps = ratio is not None and ratio > JUMP_RATIO
             text += (f"; the target lies between {xa:.5g} ({fa:+.3f}) and {xb:.5g} ({fb:+.3f})"
-                     + (f": the response JUMPS across it there ({ratio:.0f} x the search's "
-                        f"slope), no value meets it" if jumps else ""))
+                     + (f": the response JUMPS across it there ({ratio:.0f} x its slope "
+                        f"elsewhere), no value meets it" if jumps else ""))
         lines.append(text)
     return lines + [""]
 
