@@ -17,6 +17,17 @@ os.environ.setdefault("NUMBA_CACHE_DIR", str(ROOT / ".numba_cache"))
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 
+# The stated accuracy of a clinical point (issue 31): what a faster scheme may move its metrics by.
+STATED_ACCURACY = {"P1": 0.05, "P2": 0.05, "CH": 0.05, "DA": 0.002}  # mmHg, DA mm
+
+
+def assert_within_stated_accuracy(metrics, reference):
+    """Every metric of ``STATED_ACCURACY`` in ``metrics`` within its accuracy of ``reference``."""
+    for name, accuracy in STATED_ACCURACY.items():
+        assert abs(metrics[name] - reference[name]) < accuracy, (name, metrics[name],
+                                                                 reference[name])
+
+
 def airpuff_argv(*args) -> list[str]:
     """The command line of the real `airpuff` command with ``args`` (as `python -m api.cli`)."""
     return [sys.executable, "-m", "api.cli", *args]

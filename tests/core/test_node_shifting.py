@@ -62,19 +62,33 @@ def test_the_initial_cloud_is_not_moved():
     assert np.array_equal(fluid.rho, rho)
 
 
-def test_a_displaced_node_is_moved_back_and_linear_fields_are_carried_exactly():
-    model = _model()
-    fluid = model.fluid
+SLOPE_RHO, SLOPE_V = 5e3, 10.0  # kg/m^4, 1/s: the linear fields a shift must carry exactly
+
+
+def displaced_node_with_linear_fields(fluid):
+    """Move the middle interior node by (0.3 h, 0.2 h) off its place and set the linear fields
+    rho = rho0 + SLOPE_RHO y, v_y = 0.2 + SLOPE_V x, v_x = 0; return the node and its h [m]."""
     i = _free_interior_node(fluid)
     h = fluid.h[i]
-    home = np.array([fluid.x[i], fluid.y[i]])
     fluid.x[i] += 0.3 * h
     fluid.y[i] += 0.2 * h
-    slope_rho, slope_v = 5e3, 10.0  # kg/m^4, 1/s
-    fluid.rho[:] = fluid.rho0 + slope_rho * fluid.y
-    fluid.vy[:] = 0.2 + slope_v * fluid.x
+    fluid.rho[:] = fluid.rho0 + SLOPE_RHO * fluid.y
+    fluid.vy[:] = 0.2 + SLOPE_V * fluid.x
     fluid.vx[:] = 0.0
     fluid.refresh_derivatives()
+    return i, h
+
+
+def assert_linear_fields_carried(fluid):
+    np.testing.assert_allclose(fluid.rho, fluid.rho0 + SLOPE_RHO * fluid.y, rtol=1e-12)
+    np.testing.assert_allclose(fluid.vy, 0.2 + SLOPE_V * fluid.x, rtol=0, atol=1e-12)
+
+
+def test_a_displaced_node_is_moved_back_and_linear_fields_are_carried_exactly():
+    fluid = _model().fluid
+    home_x, home_y = fluid.x.copy(), fluid.y.copy()
+    i, h = displaced_node_with_linear_fields(fluid)
+    home = np.array([home_x[i], home_y[i]])
     others = np.arange(fluid.x.shape[0]) != i
     x0, y0 = fluid.x.copy(), fluid.y.copy()
     before = np.hypot(*(np.array([fluid.x[i], fluid.y[i]]) - home))
@@ -85,8 +99,7 @@ def test_a_displaced_node_is_moved_back_and_linear_fields_are_carried_exactly():
     assert moved[i] <= 0.05 * h * (1 + 1e-12)  # the per-step limit
     assert moved[others].max() < moved[i]  # its neighbours give way less than it moves
     assert np.count_nonzero(moved) > 1
-    np.testing.assert_allclose(fluid.rho, fluid.rho0 + slope_rho * fluid.y, rtol=1e-12)
-    np.testing.assert_allclose(fluid.vy, 0.2 + slope_v * fluid.x, rtol=0, atol=1e-12)
+    assert_linear_fields_carried(fluid)
 
 
 @pytest.fixture(scope="module")
