@@ -8,7 +8,6 @@ take the summed dt; a coarse run keeps its mass and volume, and a coarse clinica
 metrics within the stated accuracy of a clinical point (issue 31) of the run shifted at every
 step."""
 
-
 import numpy as np
 import pytest
 
