@@ -53,6 +53,28 @@ STRAIN_LIMIT = 0.02  # default strain_limit of ``FluidStepper`` (docs/performanc
 SHIFT_LIMIT = 0.05  # largest node shift per step / h (``node_shifting``, kernels/shifting.py)
 
 
+class StepInterval:
+    """Fires every ``interval``-th step with the time of the steps since it last fired: the
+    span [s] over which an operation applied only every N-th step integrates (the steps' dt
+    summed in order, so that an interval of 1 gives dt itself, exactly)."""
+
+    def __init__(self, interval: int):
+        self.interval = int(interval)
+        self.steps = 0
+        self.span = 0.0
+
+    def tick(self, dt):
+        """Count a step of dt [s]; its (span [s], steps) if the operation is due, else None."""
+        self.steps += 1
+        self.span += dt
+        if self.steps < self.interval:
+            return None
+        due = (self.span, self.steps)
+        self.steps = 0
+        self.span = 0.0
+        return due
+
+
 class FluidStepper:
     """The fluid's state, operators and work arrays of one run; see the module docstring.
 
@@ -125,9 +147,7 @@ class FluidStepper:
         self.pinned_vy = (ch.kind == WALL) | (ch.kind == CORNEA)
         self.pinned_vx = self.pinned_vy | (ch.kind == AXIS)
         self.last_hv_substeps = 0
-        self.hv_interval = int(hyperviscosity_interval)
-        self._hv_steps = 0  # steps since the hyperviscosity's last application
-        self._hv_span = 0.0  # their time [s], over which its next application integrates
+        self.hv_interval = StepInterval(hyperviscosity_interval)
         # the velocity's divergence damped (docs/model.md section 4, issue 25)
         self.divergence_damping = (
             DivergenceDamping(si.hyperviscosity_divergence, ch.h, self.pinned_vx, self.pinned_vy)
@@ -135,9 +155,7 @@ class FluidStepper:
         self._div_increments = (np.empty(n), np.empty(n))
         # node shifting towards a regular cloud (``kernels/shifting.py``; 0: off)
         self.shifting = si.node_shifting
-        self.shift_interval = int(node_shifting_interval)
-        self._shift_steps = 0  # steps since the last shift
-        self._shift_span = 0.0  # their time [s], the next shift's dt
+        self.shift_interval = StepInterval(node_shifting_interval)
         if self.shifting > 0:
             self.h = ch.h
             self.area = ch.area
@@ -165,6 +183,15 @@ class FluidStepper:
                                 div)
         return strain
 
+    def scalar_gradient(self, ops, x, y, field, gradient, time_ms=None):
+        """gradient[0] = grad ``field`` (even across the axis) at the nodes (x, y) [m], by the
+        operators of ``ops`` mapped across their strain (Lagrangian reuse) or built there."""
+        if self.lagrangian:
+            ops.mapped_derivatives(x, y, field[np.newaxis], PRESSURE_PARITY, gradient,
+                                   time_ms=time_ms)
+        else:
+            ops.derivatives(x, y, field[np.newaxis], PRESSURE_PARITY, gradient, time_ms=time_ms)
+
     def refresh_derivatives(self):
         """The operators and velocity derivatives at t^n for the current state (at the start,
         and after the state arrays were set from outside, e.g. by the stability analysis)."""
@@ -185,12 +212,8 @@ class FluidStepper:
         advance_density(self.rho, self.rho, self.div, 0.5 * dt, w["hv_rho"], dt, w["rho_half"])
         drift(self.x, self.y, self.vx, self.vy, 0.5 * dt, w["x_half"], w["y_half"])
         tait_pressure(w["rho_half"], self.rho0, self.p0, c, self.gamma, w["p_half"])
-        if self.lagrangian:
-            self.ops_half.mapped_derivatives(w["x_half"], w["y_half"], w["p_half"][np.newaxis],
-                                             PRESSURE_PARITY, self._grad_p, time_ms=t * 1e3)
-        else:
-            self.ops_half.derivatives(w["x_half"], w["y_half"], w["p_half"][np.newaxis],
-                                      PRESSURE_PARITY, self._grad_p, time_ms=t * 1e3)
+        self.scalar_gradient(self.ops_half, w["x_half"], w["y_half"], w["p_half"], self._grad_p,
+                             time_ms=t * 1e3)
         w["vx_new"][:] = 0.0
         w["vy_new"][:] = 0.0
         advance_velocity(self.kind, self.x, self.vx, self.vy, self._grad_p[0], self.dv[0],
@@ -206,18 +229,15 @@ class FluidStepper:
         rates.  With ``hv_interval`` N > 1 it is integrated only at every N-th step, over the
         span of the N steps up to this one's end, and is zero in the others."""
         w = self.work
-        self._hv_steps += 1
-        self._hv_span += dt
-        if gamma <= 0 or self._hv_steps < self.hv_interval:
+        due = self.hv_interval.tick(dt)
+        if gamma <= 0 or due is None:
             w["hv_rho"][:] = 0.0
             w["hv_vx"][:] = 0.0
             w["hv_vy"][:] = 0.0
             self.last_hv_substeps = 0
             self._divergence_damping_rates(dt, c)
             return
-        span = self._hv_span  # dt itself with an interval of 1 (0.0 + dt, exact)
-        self._hv_steps = 0
-        self._hv_span = 0.0
+        span = due[0]
         scale = gamma * self.density_hyperviscosity_speed(c) * self.hv_scale_unit
         supersteps, stages = legendre_plan(span / dt_hyperviscous)
         self.last_hv_substeps = supersteps * stages  # applications of the operator
@@ -318,12 +338,9 @@ class FluidStepper:
         self.ops_n, self.ops_new = self.ops_new, self.ops_n
         self.strain = self.strain_new
         if self.shifting > 0 and dt > 0:
-            self._shift_steps += 1
-            self._shift_span += dt
-            if self._shift_steps >= self.shift_interval:
-                self.shift(self._shift_span, self._shift_steps)
-                self._shift_steps = 0
-                self._shift_span = 0.0
+            due = self.shift_interval.tick(dt)
+            if due is not None:
+                self.shift(*due)
         if self.lagrangian and not self.strain <= self.strain_limit:  # also NaN
             self.refresh_derivatives()  # the operator rebuilt at the new state
 
@@ -344,12 +361,7 @@ class FluidStepper:
         shift_displacements(self.x, self.kind, self.h, self._grad_c, self._grad_c_initial,
                             self.shifting * self.max_speed() * dt, SHIFT_LIMIT * steps, start, nbr,
                             count, dx, dy)
-        if self.lagrangian:
-            self.ops_n.mapped_derivatives(self.x, self.y, self.rho[np.newaxis], PRESSURE_PARITY,
-                                          self._grad_rho)
-        else:
-            self.ops_n.derivatives(self.x, self.y, self.rho[np.newaxis], PRESSURE_PARITY,
-                                   self._grad_rho)
+        self.scalar_gradient(self.ops_n, self.x, self.y, self.rho, self._grad_rho)
         shift_nodes(dx, dy, self.kind, self._grad_rho[0], self.dv[0], self.dv[1], self.x, self.y,
                     self.rho, self.vx, self.vy)
         if self.lagrangian:
