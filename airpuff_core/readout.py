@@ -32,9 +32,17 @@ The square, not the rms: D2 is smooth where the profile passes through flat (the
 corner there, which biases the parabolic refinement below by a fraction of a step).
 
 **Applanation times** (``signal_applanations``): the instrument's signal peaks (for the Corvis
-the minima of D2), the first applanation the highest peak before the highest concavity, the
-second the highest after it, each refined by the vertex of the parabola through the top step
-and its two neighbours.
+the minima of D2).  The first applanation is the first peak before the highest concavity, the
+second the last peak after it, as the apex curvature's first and last sign changes are for the
+paper's jet: the cornea's first passage through flat on its way in, and its last on its way out.
+A peak counts when it rises above half the signal's range in its window,
+
+    s_k > s_k-1,  s_k >= s_k+1,  s_k >= s_min + (s_max - s_min) / 2,
+
+and its time is the vertex of the parabola through the peak step and its two neighbours.  A
+cornea that lingers near flat on its way out (a soft or strongly viscoelastic one at low IOP)
+gives a plateau of nearly equal peaks, the last of them where it leaves flat; the highest of
+them would flip from one to another as their heights cross (by 1.3 ms, P2 by about 6 mmHg).
 
 ``applanations`` gives a run's two applanations by its instrument's read-out, as the metrics
 (``metrics.py``) take them.
@@ -59,6 +67,9 @@ CORVIS_LENGTH_MM = 1.82
 # the ORA's pump is switched off after the first peak of at least a tenth of a flat zone's signal
 # (its peaks over IOP 10-30: 0.23-0.27 at the normal eye's CCT; the convex cornea's: 0.002)
 ORA_DETECTION_THRESHOLD = 0.1
+# a peak of an instrument's signal is an applanation when it rises above this fraction of the
+# signal's range in its window (module docstring)
+APPLANATION_PEAK_LEVEL = 0.5
 
 
 @njit(cache=True)
@@ -137,25 +148,33 @@ def peak_vertex(t0, t1, t2, s0, s1, s2):
     return float(t1 - 0.5 * b / c)
 
 
-def _peak(t, s, lo, hi):
-    """The step k in lo..hi-1 of the highest sample of s and its vertex time; (-1, NaN) when the
-    highest sample is at either end (no peak)."""
+def _passage(t, s, lo, hi, first):
+    """The vertex time of the first (or last) peak of s over the steps lo..hi-1 that rises above
+    APPLANATION_PEAK_LEVEL of the signal's range there (module docstring); NaN when the highest
+    sample is at either end of the window (no peak)."""
     if hi - lo < 3:
-        return -1, math.nan
-    k = lo + int(np.nanargmax(s[lo:hi]))
-    if k == lo or k == hi - 1:
-        return -1, math.nan
-    return k, peak_vertex(t[k - 1], t[k], t[k + 1], s[k - 1], s[k], s[k + 1])
+        return math.nan
+    window = s[lo:hi]
+    k_max = int(np.nanargmax(window))
+    if k_max == 0 or k_max == hi - lo - 1:
+        return math.nan
+    low, high = np.nanmin(window), window[k_max]
+    level = low + APPLANATION_PEAK_LEVEL * (high - low)
+    inner = np.arange(1, hi - lo - 1)
+    peaks = inner[(window[inner] > window[inner - 1]) & (window[inner] >= window[inner + 1])
+                  & (window[inner] >= level)]
+    k = lo + int(peaks[0] if first else peaks[-1])
+    return peak_vertex(t[k - 1], t[k], t[k + 1], s[k - 1], s[k], s[k + 1])
 
 
 def signal_applanations(t, s, t_split):
-    """(t_A1, t_A2) [ms]: the highest peak of the signal s at the step times t before
-    ``t_split`` (the highest concavity) and the highest after it (module docstring); NaN for
-    one without a peak."""
+    """(t_A1, t_A2) [ms]: the first peak of the signal s at the step times t before ``t_split``
+    (the highest concavity) and the last peak after it (module docstring); NaN for one without
+    a peak."""
     t = np.asarray(t)
     s = np.asarray(s)
     k = int(np.searchsorted(t, t_split))
-    return _peak(t, s, 0, k)[1], _peak(t, s, k, t.shape[0])[1]
+    return _passage(t, s, 0, k, True), _passage(t, s, k, t.shape[0], False)
 
 
 def _step_position(t, t_a):
@@ -195,7 +214,8 @@ def applanations(step_t, step_kappa, step_signal, t_hc):
 class PeakDetector:
     """The first peak of a signal of at least ``threshold``, found online as the instrument
     does: after each new sample (t, s), the sample before is a peak when it is the higher of
-    its neighbours; its time is ``peak_vertex``'s, as ``signal_applanations`` refines it."""
+    its neighbours; its time is ``peak_vertex``'s, as ``signal_applanations`` refines its first
+    peak."""
 
     def __init__(self, threshold):
         self.threshold = threshold

@@ -61,6 +61,33 @@ def test_signal_applanations_of_a_sequence_of_caps():
         assert abs(a1 - t1) < 0.05 * dt and abs(a2 - t2) < 0.05 * dt
 
 
+def plateau(t, heights, times=(20.3, 20.95, 21.6), width=0.25):
+    """Nearly equal Gaussian humps [1] at ``times`` [ms] over a floor of 0.002: a cornea that
+    lingers near flat."""
+    return 0.002 + sum(h * np.exp(-((t - tk) / width) ** 2) for h, tk in zip(heights, times))
+
+
+def test_the_last_of_nearly_equal_peaks_is_the_second_applanation():
+    """A plateau whose earlier hump is the highest (0.262 against 0.261 and 0.259) and one whose
+    last is: the second applanation is the last hump's vertex in both, where the highest peak
+    would jump by 1.3 ms.  Before the split, the first of two humps is the first applanation."""
+    t = np.cumsum(np.random.default_rng(2).uniform(0.02, 0.06, 700))
+    for heights in ((0.262, 0.259, 0.261), (0.261, 0.259, 0.262)):
+        s = plateau(t, heights) + plateau(t, heights[::-1], (8.0, 8.65, 9.3))
+        a1, a2 = signal_applanations(t, s, 15.0)
+        # a neighbouring hump's tail shifts the vertex by a few thousandths of a millisecond
+        assert a1 == pytest.approx(8.0, abs=0.01) and a2 == pytest.approx(21.6, abs=0.01)
+
+
+def test_a_low_hump_is_not_a_peak():
+    """A hump below half the signal's range (0.1 of 0.26) after the last applanation's peak, and
+    one before the first: neither is an applanation."""
+    t = np.linspace(0.0, 30.0, 3001)
+    s = plateau(t, (0.1, 0.26, 0.26, 0.1), (5.0, 8.0, 21.0, 24.0))
+    a1, a2 = signal_applanations(t, s, 15.0)
+    assert a1 == pytest.approx(8.0, abs=1e-3) and a2 == pytest.approx(21.0, abs=1e-3)
+
+
 def test_no_peak_is_nan():
     t = np.linspace(0.0, 10.0, 50)
     a1, a2 = signal_applanations(t, t.copy(), 5.0)  # rising throughout: no peak
