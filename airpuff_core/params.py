@@ -358,7 +358,7 @@ INT_PARAMETERS = {
                                 "hyperviscosity gamma c h^5 alone, by 0.1-0.27 mmHg with "
                                 "hyperviscosity_speed, _divergence or _density_speed (docs/"
                                 "model.md section 4)"),
-    "node_shifting_interval": (1, 1, 16, "fluid steps per node shift (node_shifting), each "
+    "node_shifting_interval": (8, 1, 16, "fluid steps per node shift (node_shifting), each "
                                "shifting by the steps' time together (1: every step; docs/"
                                "model.md section 4)"),
 }
