@@ -71,7 +71,8 @@ def applanation_readings(p1, p2) -> dict:
 
 
 def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t0_ms,
-                    step_budget=None, step_velocity=None, step_signal=None):
+                    step_budget=None, step_velocity=None, step_signal=None,
+                    signal_passages=True):
     """Return (metrics, notes, extra diagnostics).  ``step_budget`` (steps, 4): the apex force
     budget at every step [mmHg] (``CoupledModel.apex_budget``: the jet's mean over the apex
     nodes, fluid pressure, equilibrium resistance, viscoelastic overstress, inertia),
@@ -81,8 +82,9 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
     what the discrete balance leaves (likewise P2); CH_<part> = P1_<part> - P2_<part>.
     ``step_velocity``: the apex's inward velocity as the instrument sees it at every step [m/s]
     (v_A1, v_A2).  ``step_signal``: the instrument's applanation signal at every step
-    (``readout.py``), whose peaks are then the applanations; None: the apex curvature's sign
-    changes."""
+    (``readout.py``), whose peaks are then the applanations (its first and last with
+    ``signal_passages``, else its highest: ``readout.signal_applanations``); None: the apex
+    curvature's sign changes."""
     nan = math.nan
     m = {k: nan for k in ("P1", "P2", "CH", "IOPg", "IOPcc", "CRF", "IOPcc_ora", "t_A1", "t_A2",
                           "t_HC", "hc_delay", "DA", "deflection_amplitude",
@@ -119,7 +121,8 @@ def compute_metrics(time_ms, hist, step_t, step_kappa, step_fluid_p, jet_apex, t
 
     extra["applanation_crossings_down"] = len(curvature_crossings(step_t, step_kappa, True))
     extra["applanation_crossings_up"] = len(curvature_crossings(step_t, step_kappa, False))
-    a1, a2, (never, missing) = applanations(step_t, step_kappa, step_signal, m["t_HC"])
+    a1, a2, (never, missing) = applanations(step_t, step_kappa, step_signal, m["t_HC"],
+                                              signal_passages)
     if a1 is not None:
         _applanation(m, extra, "1", a1, jet_apex, step_fluid_p, step_velocity, step_budget)
         if a2 is not None:

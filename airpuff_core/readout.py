@@ -32,17 +32,27 @@ The square, not the rms: D2 is smooth where the profile passes through flat (the
 corner there, which biases the parabolic refinement below by a fraction of a step).
 
 **Applanation times** (``signal_applanations``): the instrument's signal peaks (for the Corvis
-the minima of D2).  The first applanation is the first peak before the highest concavity, the
-second the last peak after it, as the apex curvature's first and last sign changes are for the
-paper's jet: the cornea's first passage through flat on its way in, and its last on its way out.
-A peak counts when it rises above half the signal's range in its window,
+the minima of D2).
 
-    s_k > s_k-1,  s_k >= s_k+1,  s_k >= s_min + (s_max - s_min) / 2,
+- ORA: the first applanation is the first peak before the highest concavity, the second the last
+  peak after it, as the apex curvature's first and last sign changes are for the paper's jet:
+  the cornea's first passage through flat on its way in, and its last on its way out.  A peak
+  counts when the signal has come at least half way from the resting cornea's value s_0 (the
+  run's first step: a convex cornea reflects almost nothing) to its highest in the window,
 
-and its time is the vertex of the parabola through the peak step and its two neighbours.  A
-cornea that lingers near flat on its way out (a soft or strongly viscoelastic one at low IOP)
-gives a plateau of nearly equal peaks, the last of them where it leaves flat; the highest of
-them would flip from one to another as their heights cross (by 1.3 ms, P2 by about 6 mmHg).
+      s_k > s_k-1,  s_k >= s_k+1,  s_k >= s_0 + (s_max - s_0) / 2.
+
+  A cornea that lingers near flat on its way out (a soft or strongly viscoelastic one at low
+  IOP) gives a plateau of nearly equal peaks, the last of them where it leaves flat; the highest
+  of them would flip from one to another as their heights cross (by 1.3 ms, P2 by about
+  6 mmHg).  The reflection falls to a few per cent of its peak within a millisecond of leaving
+  flat, so nothing after the last passage comes near the level.
+- Corvis ST: the highest peak before the highest concavity and the highest after it.  D2 does
+  not fall so steeply: a strongly viscoelastic cornea creeps back to its resting shape over tens
+  of milliseconds, and its departure from flat stays within half its resting value long after the
+  second applanation, where the last peak would be the creep's last wiggle.
+
+Each peak's time is the vertex of the parabola through the peak step and its two neighbours.
 
 ``applanations`` gives a run's two applanations by its instrument's read-out, as the metrics
 (``metrics.py``) take them.
@@ -67,8 +77,8 @@ CORVIS_LENGTH_MM = 1.82
 # the ORA's pump is switched off after the first peak of at least a tenth of a flat zone's signal
 # (its peaks over IOP 10-30: 0.23-0.27 at the normal eye's CCT; the convex cornea's: 0.002)
 ORA_DETECTION_THRESHOLD = 0.1
-# a peak of an instrument's signal is an applanation when it rises above this fraction of the
-# signal's range in its window (module docstring)
+# a peak of an instrument's signal is an applanation when it has come this fraction of the way
+# from the resting cornea's signal to the highest in its window (module docstring)
 APPLANATION_PEAK_LEVEL = 0.5
 
 
@@ -149,17 +159,16 @@ def peak_vertex(t0, t1, t2, s0, s1, s2):
 
 
 def _passage(t, s, lo, hi, first):
-    """The vertex time of the first (or last) peak of s over the steps lo..hi-1 that rises above
-    APPLANATION_PEAK_LEVEL of the signal's range there (module docstring); NaN when the highest
-    sample is at either end of the window (no peak)."""
+    """The vertex time of the first (or last) peak of s over the steps lo..hi-1 that has come
+    APPLANATION_PEAK_LEVEL of the way from the resting value s[0] to the highest there (module
+    docstring); NaN when the highest sample is at either end of the window (no peak)."""
     if hi - lo < 3:
         return math.nan
     window = s[lo:hi]
     k_max = int(np.nanargmax(window))
     if k_max == 0 or k_max == hi - lo - 1:
         return math.nan
-    low, high = np.nanmin(window), window[k_max]
-    level = low + APPLANATION_PEAK_LEVEL * (high - low)
+    level = s[0] + APPLANATION_PEAK_LEVEL * (window[k_max] - s[0])
     inner = np.arange(1, hi - lo - 1)
     peaks = inner[(window[inner] > window[inner - 1]) & (window[inner] >= window[inner + 1])
                   & (window[inner] >= level)]
@@ -167,14 +176,28 @@ def _passage(t, s, lo, hi, first):
     return peak_vertex(t[k - 1], t[k], t[k + 1], s[k - 1], s[k], s[k + 1])
 
 
-def signal_applanations(t, s, t_split):
-    """(t_A1, t_A2) [ms]: the first peak of the signal s at the step times t before ``t_split``
-    (the highest concavity) and the last peak after it (module docstring); NaN for one without
+def _highest(t, s, lo, hi):
+    """The vertex time of the highest peak of s over the steps lo..hi-1; NaN when the highest
+    sample is at either end of the window (no peak)."""
+    if hi - lo < 3:
+        return math.nan
+    k = lo + int(np.nanargmax(s[lo:hi]))
+    if k == lo or k == hi - 1:
+        return math.nan
+    return peak_vertex(t[k - 1], t[k], t[k + 1], s[k - 1], s[k], s[k + 1])
+
+
+def signal_applanations(t, s, t_split, passages=True):
+    """(t_A1, t_A2) [ms] of the signal s at the step times t, split at ``t_split`` (the highest
+    concavity; module docstring): with ``passages`` the first peak before and the last after
+    (the ORA's), otherwise the highest before and after (the Corvis ST's); NaN for one without
     a peak."""
     t = np.asarray(t)
     s = np.asarray(s)
     k = int(np.searchsorted(t, t_split))
-    return _passage(t, s, 0, k, True), _passage(t, s, k, t.shape[0], False)
+    if passages:
+        return _passage(t, s, 0, k, True), _passage(t, s, k, t.shape[0], False)
+    return _highest(t, s, 0, k), _highest(t, s, k, t.shape[0])
 
 
 def _step_position(t, t_a):
@@ -194,15 +217,16 @@ _MISSING = {
 }
 
 
-def applanations(step_t, step_kappa, step_signal, t_hc):
+def applanations(step_t, step_kappa, step_signal, t_hc, passages=True):
     """A run's two applanations (module docstring) from its step series [ms], apex curvature
     and, for an instrument with a signal (``readout_for_run``), that signal (None for the
-    paper's jet: the curvature's sign changes).  Returns (a1, a2, reasons): each applanation
-    (t [ms], step i, fraction s between steps i and i + 1) or None, and the reasons for a
-    missing one (no A1, no A2)."""
+    paper's jet: the curvature's sign changes) read by first and last ``passages`` or not
+    (``InstrumentReadout.passages``).  Returns (a1, a2, reasons): each applanation (t [ms],
+    step i, fraction s between steps i and i + 1) or None, and the reasons for a missing one
+    (no A1, no A2)."""
     if step_signal is not None:
         a1, a2 = (_step_position(step_t, t_a) for t_a in
-                  signal_applanations(step_t, step_signal, t_hc))
+                  signal_applanations(step_t, step_signal, t_hc, passages))
         return a1, a2, _MISSING["signal"]
     down = curvature_crossings(step_t, step_kappa, True)
     a1 = down[0] if down else None
@@ -239,10 +263,12 @@ class InstrumentReadout:
     the signal out): the ORA's reflection signal S [1], or the Corvis ST's -D2 [mm^2] (so that
     both peak at applanation).  It reads the nodes whose reference x lies within twice the
     instrument's zone (the zone's half-length for the Corvis), and one more, so that the zone
-    stays covered while the cornea deforms."""
+    stays covered while the cornea deforms.  ``passages``: the applanations are the signal's
+    first and last peaks (the ORA's) rather than its highest (the Corvis ST's)."""
 
     def __init__(self, instrument, X_ref):
         self.instrument = instrument
+        self.passages = instrument == "ora"
         reach_mm = ORA_ZONE_RADIUS_MM if instrument == "ora" else 0.5 * CORVIS_LENGTH_MM
         self.n_nodes = min(X_ref.shape[0],
                            int(np.searchsorted(X_ref, 2e-3 * reach_mm, side="right")) + 1)

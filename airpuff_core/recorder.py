@@ -200,7 +200,8 @@ class Recorder:
             np.array(self.step_fluid_p),
             lambda t_ms: model.jet.at_apex(t_ms * 1e-3) / MMHG_PA, model.jet.peak_time * 1e3,
             np.array(self.step_budget), np.array(self.step_velocity),
-            np.array(self.step_signal) if model.readout is not None else None)
+            np.array(self.step_signal) if model.readout is not None else None,
+            model.readout is not None and model.readout.passages)
         diagnostics = self._diagnostics(model, wall_s)
         diagnostics.update(extra)
         # the output times as the run's netCDF stores them (``decodable_ms``), so that the result

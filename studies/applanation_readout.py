@@ -104,7 +104,7 @@ def readouts(data, ora_settings, corvis_lengths) -> dict:
         out[f"ora r{r_zone:g} a{acceptance:g}"] = (t1, t2, at(t1), at(t2))
     for length in corvis_lengths:
         s = -np.array([corvis_departure(x[k], y[k], length) for k in range(t.shape[0])])
-        t1, t2 = signal_applanations(t, s, t_hc)
+        t1, t2 = signal_applanations(t, s, t_hc, passages=False)
         out[f"corvis L{length:g}"] = (t1, t2, at(t1), at(t2))
     return out
 

@@ -56,8 +56,8 @@ def test_signal_applanations_of_a_sequence_of_caps():
     s_ora = np.array([ora_signal(X, cap(k), 1.0, 0.05) for k in kappa])
     s_corvis = -np.array([corvis_departure(X, cap(k), 1.82) for k in kappa])
     dt = np.max(np.diff(t))
-    for s in (s_ora, s_corvis):
-        a1, a2 = signal_applanations(t, s, t_split)
+    for s, passages in ((s_ora, True), (s_corvis, False), (s_corvis, True)):
+        a1, a2 = signal_applanations(t, s, t_split, passages)
         assert abs(a1 - t1) < 0.05 * dt and abs(a2 - t2) < 0.05 * dt
 
 
@@ -80,15 +80,28 @@ def test_the_last_of_nearly_equal_peaks_is_the_second_applanation():
 
 
 def test_a_low_hump_is_not_a_peak():
-    """A hump below half the signal's range (0.1 of 0.26) after the last applanation's peak, and
-    one before the first: neither is an applanation."""
+    """A hump less than half way from the resting signal to the peak (0.1 of 0.26) after the last
+    applanation's peak, and one before the first: neither is an applanation."""
     t = np.linspace(0.0, 30.0, 3001)
     s = plateau(t, (0.1, 0.26, 0.26, 0.1), (5.0, 8.0, 21.0, 24.0))
     a1, a2 = signal_applanations(t, s, 15.0)
     assert a1 == pytest.approx(8.0, abs=1e-3) and a2 == pytest.approx(21.0, abs=1e-3)
 
 
+def test_a_departure_that_rests_near_flat_is_measured_from_rest():
+    """A resting departure from flat (0.01 mm^2) far below the highest concavity's (0.2): as
+    first and last passages, wiggles of the resting cornea are not applanations, the minima of
+    D2 about 8 and 21 ms are (the signal's range would count the wiggles)."""
+    t = np.linspace(0.0, 30.0, 3001)
+    d2 = (0.01 + 1e-5 * np.sin(40.0 * t)
+          + (0.2 - 0.01) * np.exp(-((t - 14.5) / 3.0) ** 2)  # the concave phase
+          - 0.0099 * (np.exp(-((t - 8.0) / 0.4) ** 2) + np.exp(-((t - 21.0) / 0.4) ** 2)))
+    a1, a2 = signal_applanations(t, -d2, 14.5)
+    assert a1 == pytest.approx(8.0, abs=0.05) and a2 == pytest.approx(21.0, abs=0.05)
+
+
 def test_no_peak_is_nan():
     t = np.linspace(0.0, 10.0, 50)
-    a1, a2 = signal_applanations(t, t.copy(), 5.0)  # rising throughout: no peak
-    assert math.isnan(a1) and math.isnan(a2)
+    for passages in (True, False):  # rising throughout: no peak
+        a1, a2 = signal_applanations(t, t.copy(), 5.0, passages)
+        assert math.isnan(a1) and math.isnan(a2)
