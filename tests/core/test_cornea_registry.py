@@ -57,8 +57,8 @@ def test_a_preset_value_that_does_not_apply_to_the_chosen_cornea_is_dropped():
     for cornea in ("membrane", "kirchhoff"):
         p = RunParams(model="clinical", cornea=cornea)
         assert (p.cornea, p.transverse_shear_modulus) == (cornea, 0.0)
-        assert p.ve_g == 0.3  # the tissue law applies to any model
-    assert RunParams(model="clinical", cornea="mindlin").transverse_shear_modulus == 9.48
+        assert p.ve_g == 0.58  # the tissue law applies to any model
+    assert RunParams(model="clinical", cornea="mindlin").transverse_shear_modulus == 12.33
     clinical = RunParams(model="clinical")
     assert clinical.replace(cornea="membrane").transverse_shear_modulus == 0.0
     assert clinical.replace(cornea="kirchhoff", limbus="pinned").limbus == "pinned"

@@ -102,11 +102,13 @@ def test_energy_budget_of_a_full_run_closes():
 
 
 def test_clinical_preset_and_explicit_options():
-    """The clinical preset sets the shell, the compliant globe and Kling et al.'s viscoelastic
-    parameters; explicit options override it, also through the HTTP request model and the
+    """The clinical preset sets the shell, the compliant globe and the fitted viscoelastic
+    parameters (clinical_published Kling et al.'s); explicit options override it, also through the HTTP request model and the
     browser's form (whose omitted preset parameters stay None, so that the preset fills them)."""
     p = RunParams(model="clinical")
-    assert (p.cornea, p.globe, p.ve_g, p.ve_tau) == ("mindlin", "compliant", 0.3, 10.0)
+    assert (p.cornea, p.globe, p.ve_g, p.ve_tau) == ("mindlin", "compliant", 0.58, 10.0)
+    published = RunParams(model="clinical_published")
+    assert (published.ve_g, published.transverse_shear_modulus) == (0.3, 9.48)
     paper = RunParams()
     assert (paper.cornea, paper.globe, paper.ve_g) == ("membrane", "rigid", 0.0)
     assert RunParams(model="clinical", ve_g=0.1).ve_g == 0.1
@@ -116,7 +118,7 @@ def test_clinical_preset_and_explicit_options():
     values.pop("retry_failed", None)  # a job option, not a run's (as api/routes.py does)
     axes = {k: values.pop(k) for k in SWEPT}
     point = SweepSpec(**axes, options=values).validate().validated_points()[0]
-    assert (point.cornea, point.globe, point.ve_g, point.ve_tau) == ("mindlin", "rigid", 0.3,
+    assert (point.cornea, point.globe, point.ve_g, point.ve_tau) == ("mindlin", "rigid", 0.58,
                                                                      10.0)
     # the browser's sweep form leaves the preset's fields empty, so the preset fills them
     form = {**sweep_form.defaults(), "model": "clinical", "E0": "0.5", "IOP": "16"}
@@ -126,7 +128,7 @@ def test_clinical_preset_and_explicit_options():
     values.pop("retry_failed", None)
     axes = {k: values.pop(k) for k in SWEPT}
     point = SweepSpec(**axes, options=values).validate().validated_points()[0]
-    assert (point.cornea, point.globe, point.ve_g) == ("mindlin", "compliant", 0.3)
+    assert (point.cornea, point.globe, point.ve_g) == ("mindlin", "compliant", 0.58)
 
 
 def test_apex_moment_is_the_bending_law_at_the_apex():
