@@ -118,7 +118,8 @@ def test_the_cornea_follows_the_model_unless_chosen(server, session):
     """The cornea's select offers 'from model' first, selected: left there, the form sends no
     cornea and the model preset decides, as a POST /sweeps without the key does."""
     page = session.get("/new")
-    assert ('<option value="">from model: membrane (paper), shell (clinical)</option>'
+    assert ('<option value="">from model: membrane (paper), shell (clinical), '
+            'shell (clinical_published)</option>'
             in page.text)
     r = session.post("/new", data={"E0": "0.5", "model": "clinical", "cornea": "", "t_end": "2"})
     assert r.status_code == 303
