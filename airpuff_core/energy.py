@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels.energy import (compression_energy, fluid_dissipation_power, kinetic_energy,
-                             pressure_load_work)
+from .kernels.energy import (compression_energy, compression_energy_change,
+                             fluid_dissipation_power, kinetic_energy, pressure_load_work)
 
 UJ = 1e-6  # J per microjoule
 
@@ -102,10 +102,8 @@ class EnergyBudget:
         self.fluid_hyperviscous += hyper * dt
         self.globe_work += model.globe.work(fluid.rho, w["rho_new"], c)
         if c != self._c_last:
-            self.sound_speed_work += (
-                compression_energy(self.mass, fluid.rho, self.rho0, self.p0, c, self.gamma)
-                - compression_energy(self.mass, fluid.rho, self.rho0, self.p0, self._c_last,
-                                     self.gamma))
+            self.sound_speed_work += compression_energy_change(
+                self.mass, fluid.rho, self.rho0, self.p0, self._c_last, c, self.gamma)
         self._c_last = c
 
     def committed(self, model, dt):
