@@ -37,16 +37,18 @@ the minima of D2).
 - ORA: the first applanation is the first peak before the highest concavity, the second the last
   peak after it, as the apex curvature's first and last sign changes are for the paper's jet:
   the cornea's first passage through flat on its way in, and its last on its way out.  A peak
-  counts when the signal has come at least half way from the resting cornea's value s_0 (the
-  run's first step: a convex cornea reflects almost nothing) to its highest in the window,
+  counts when the signal has come at least four fifths of the way from the resting cornea's
+  value s_0 (the run's first step: a convex cornea reflects almost nothing) to its highest in
+  the window,
 
-      s_k > s_k-1,  s_k >= s_k+1,  s_k >= s_0 + (s_max - s_0) / 2.
+      s_k > s_k-1,  s_k >= s_k+1,  s_k >= s_0 + 0.8 (s_max - s_0).
 
   A cornea that lingers near flat on its way out (a soft or strongly viscoelastic one at low
-  IOP) gives a plateau of nearly equal peaks, the last of them where it leaves flat; the highest
-  of them would flip from one to another as their heights cross (by 1.3 ms, P2 by about
-  6 mmHg).  The reflection falls to a few per cent of its peak within a millisecond of leaving
-  flat, so nothing after the last passage comes near the level.
+  IOP) gives a plateau of nearly equal peaks (0.95-0.99 of the highest), the last of them where
+  it leaves flat; the highest of them would flip from one to another as their heights cross (by
+  1.3 ms, P2 by about 6 mmHg).  A cornea whose centre alone is flat gives shoulders of about
+  half the highest signal, before or after the applanation (0.51 after it at CCT 0.54 mm, IOP
+  20 mmHg, G_t 12.33 kPa, g 0.58): those are not passages through flat.
 - Corvis ST: the highest peak before the highest concavity and the highest after it.  D2 does
   not fall so steeply: a strongly viscoelastic cornea creeps back to its resting shape over tens
   of milliseconds, and its departure from flat stays within half its resting value long after the
@@ -79,7 +81,7 @@ CORVIS_LENGTH_MM = 1.82
 ORA_DETECTION_THRESHOLD = 0.1
 # a peak of an instrument's signal is an applanation when it has come this fraction of the way
 # from the resting cornea's signal to the highest in its window (module docstring)
-APPLANATION_PEAK_LEVEL = 0.5
+APPLANATION_PEAK_LEVEL = 0.8
 
 
 @njit(cache=True)

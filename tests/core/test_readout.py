@@ -79,11 +79,12 @@ def test_the_last_of_nearly_equal_peaks_is_the_second_applanation():
         assert a1 == pytest.approx(8.0, abs=0.01) and a2 == pytest.approx(21.6, abs=0.01)
 
 
-def test_a_low_hump_is_not_a_peak():
-    """A hump less than half way from the resting signal to the peak (0.1 of 0.26) after the last
-    applanation's peak, and one before the first: neither is an applanation."""
+def test_a_shoulder_is_not_a_peak():
+    """Shoulders more than half way from the resting signal to the peak (0.15 of 0.26: only the
+    centre flat) after the last applanation's peak and before the first: neither is an
+    applanation."""
     t = np.linspace(0.0, 30.0, 3001)
-    s = plateau(t, (0.1, 0.26, 0.26, 0.1), (5.0, 8.0, 21.0, 24.0))
+    s = plateau(t, (0.15, 0.26, 0.26, 0.15), (5.0, 8.0, 21.0, 22.5))
     a1, a2 = signal_applanations(t, s, 15.0)
     assert a1 == pytest.approx(8.0, abs=1e-3) and a2 == pytest.approx(21.0, abs=1e-3)
 
