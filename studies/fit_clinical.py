@@ -566,6 +566,39 @@ def run_entry(record: PointRecord, params: RunParams) -> dict:
                                               "DA", "t_A1", "t_A2")}}
 
 
+class FitLog:
+    """A fit's log: every evaluation of a response and every run, appended to ``path`` (JSON
+    lines, the file emptied first: stored runs are reused, their entries repeated) and printed
+    on one line each; the runs' entries are kept in ``runs``."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.path.write_text("")
+        self.runs: list[dict] = []
+
+    def __call__(self, entry: dict) -> None:
+        with open(self.path, "a") as f:
+            f.write(json.dumps(entry, default=_json_default) + "\n")
+        if entry["kind"] == "run":
+            print(f"  run G_t {entry[SHEAR.name]:.4f} g {entry[RATIO.name]:.4f} CCT "
+                  f"{entry['thickness']:g}: {entry['status']} "
+                  f"{'computed' if entry['computed'] else 'reused'} "
+                  f"IOPg {entry['IOPg']} CH {entry['CH']}", flush=True)
+        else:
+            calibration = (f" (P_cal = {entry['coefficients']['pressure_offset']:.4f} + "
+                           f"{entry['value']:.5f} P, IOPg_cal - IOP max "
+                           f"{entry['max_error_mmHg']:.3f} mmHg on its reference sweep)"
+                           if entry["response"] == "calibration_slope" else "")
+            print(f"[{entry['solve']}] {entry['response']} at G_t {entry[SHEAR.name]:.4f} kPa, "
+                  f"g {entry[RATIO.name]:.4f}: {entry['value']:.4f}{calibration}", flush=True)
+
+    def run(self, record: PointRecord, params: RunParams) -> None:
+        """Logs one run (a ``PointRunner``'s ``log``)."""
+        entry = run_entry(record, params)
+        self.runs.append(entry)
+        self(entry)
+
+
 def write_outputs(out: Path, summary: dict, runs: list[dict], evaluations: list[dict]) -> None:
     """``fit.json`` (everything), ``fit.nc`` (the runs and the evaluations as variables, the
     fit as attributes) and ``fit.md`` (the table), each written atomically."""
@@ -788,8 +821,39 @@ def parse_args(argv):
     return ap.parse_args(argv), ap
 
 
-def main(argv=None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+@dataclass
+class FitSetup:
+    """A fit's options, parsed and checked (:func:`fit_setup`): its mode, targets, the reference
+    eye's run parameters ``base`` (user units; without thickness and the two fitted
+    parameters), the slope's CCTs, where CH is read, the calibration's IOPs (None: raw readings),
+    the start, the workers and the evaluations per 1-D solve."""
+
+    args: object
+    argv: list[str]
+    mode: str
+    slope_target: Target
+    ch_target: Target
+    base: dict
+    ccts: tuple[float, ...]
+    reference_cct: float
+    calibration_iops: tuple[float, ...] | None
+    start: tuple[float, float] | None
+    workers: int
+    max_evaluations: int
+
+    def responses(self, runner: PointRunner, log: Callable[[dict], None] = print) -> Responses:
+        """The fit's :class:`Responses` on ``runner``."""
+        return Responses(runner, self.base, self.ccts, self.reference_cct,
+                         self.calibration_iops, log=log)
+
+    def warm_params(self) -> RunParams:
+        """The reference eye's run at the published tissue values (warms a cluster's cache)."""
+        return RunParams.from_dict({**self.base, "thickness": self.reference_cct})
+
+
+def fit_setup(argv: list[str]) -> FitSetup:
+    """The fit's command line, parsed and checked; bad input ends with one line and exit
+    code 2 (nothing run, nothing written)."""
     args, ap = parse_args(argv)
     mode = check_mode(args)
     try:
@@ -834,41 +898,29 @@ def main(argv=None) -> int:
             RunParams.from_dict({**base, "thickness": c})
     except ParameterError as err:
         ap.error(str(err))
+    return FitSetup(args, list(argv), mode, slope_target, ch_target, base, ccts, reference_cct,
+                    calibration_iops, start, workers, max_evaluations)
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    setup = fit_setup(argv)
+    args, mode, base = setup.args, setup.mode, setup.base
+    ccts, reference_cct, calibration_iops = setup.ccts, setup.reference_cct, setup.calibration_iops
+    slope_target, ch_target = setup.slope_target, setup.ch_target
 
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    log_path = out / "evaluations.jsonl"
-    log_path.write_text("")  # this fit's log (stored runs are reused, their entries repeated)
-    runs: list[dict] = []
-
-    def log(entry: dict) -> None:
-        with open(log_path, "a") as f:
-            f.write(json.dumps(entry, default=_json_default) + "\n")
-        if entry["kind"] == "run":
-            print(f"  run G_t {entry[SHEAR.name]:.4f} g {entry[RATIO.name]:.4f} CCT "
-                  f"{entry['thickness']:g}: {entry['status']} "
-                  f"{'computed' if entry['computed'] else 'reused'} "
-                  f"IOPg {entry['IOPg']} CH {entry['CH']}", flush=True)
-        else:
-            calibration = (f" (P_cal = {entry['coefficients']['pressure_offset']:.4f} + "
-                           f"{entry['value']:.5f} P, IOPg_cal - IOP max "
-                           f"{entry['max_error_mmHg']:.3f} mmHg on its reference sweep)"
-                           if entry["response"] == "calibration_slope" else "")
-            print(f"[{entry['solve']}] {entry['response']} at G_t {entry[SHEAR.name]:.4f} kPa, "
-                  f"g {entry[RATIO.name]:.4f}: {entry['value']:.4f}{calibration}", flush=True)
-
-    def log_run(record, params):
-        entry = run_entry(record, params)
-        runs.append(entry)
-        log(entry)
+    log = FitLog(out / "evaluations.jsonl")
+    runs = log.runs
 
     t0 = time.perf_counter()
-    with point_runner(args.points or out / "points", workers,
-                      RunParams.from_dict({**base, "thickness": reference_cct}), log_run) as runner:
-        responses = Responses(runner, base, ccts, reference_cct, calibration_iops, log=log)
+    with point_runner(args.points or out / "points", setup.workers, setup.warm_params(),
+                      log.run) as runner:
+        responses = setup.responses(runner, log)
         try:
-            result = fit(responses, slope_target, ch_target, start,
-                         max_evaluations=max_evaluations)
+            result = fit(responses, slope_target, ch_target, setup.start,
+                         max_evaluations=setup.max_evaluations)
             error = None
         except FitError as err:
             result, error = None, str(err)

@@ -37,18 +37,24 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shlex
+import shutil
 import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Callable
+
+import numpy as np
 
 from airpuff_core.atomic import atomic_write
 from airpuff_core.params import CHOICES, PARAMETERS, RunParams
 from airpuff_core.provenance import model_version
 
 from . import fit_clinical
-from .fit_clinical import CCT_POINTS, RATIO, REFERENCE, REFERENCE_CCT, SHEAR, _floats, _number
+from .fit_clinical import (CCT_POINTS, RATIO, REFERENCE, REFERENCE_CCT, SHEAR, FitLog, Target,
+                           _floats, _json_default, _number)
 
 BASELINE = "baseline"
 # the spreads (module docstring)
@@ -222,49 +228,371 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+# -- the first-order (linearised) sensitivity ---------------------------------------------------
+# the finite-difference steps of the Jacobian about the fit (G_t [kPa], g): about 4 % of each
+# range, moving the slope by about 0.2 mmHg per 100 um and CH by about 0.15 mmHg at the coarse
+# fit, several times the fit's tolerances (0.05) and the size of the variations' moves
+JACOBIAN_STEPS = (0.5, 0.02)
+
+
+@dataclass
+class Jacobian:
+    """The responses F = (CCT slope, CH) at ``at`` = (G_t, g) and at ``at`` +- ``steps`` along
+    each parameter: ``plus[:, j]`` = F(at + h_j e_j), ``minus[:, j]`` = F(at - h_j e_j)."""
+
+    at: tuple[float, float]
+    steps: tuple[float, float]
+    centre: np.ndarray
+    plus: np.ndarray
+    minus: np.ndarray
+
+    @property
+    def central(self) -> np.ndarray:
+        """dF_i/dtheta_j by central differences, (F(+h) - F(-h)) / 2h: exact for a quadratic
+        F, error h^2/6 F''' otherwise."""
+        return (self.plus - self.minus) / (2 * np.asarray(self.steps))
+
+    @property
+    def forward(self) -> np.ndarray:
+        return (self.plus - self.centre[:, None]) / np.asarray(self.steps)
+
+    @property
+    def backward(self) -> np.ndarray:
+        return (self.centre[:, None] - self.minus) / np.asarray(self.steps)
+
+    @property
+    def curvature(self) -> np.ndarray:
+        """d2F_i/dtheta_j2, (F(+h) - 2 F + F(-h)) / h^2: how far F is from linear."""
+        return (self.plus - 2 * self.centre[:, None] + self.minus) / np.asarray(self.steps) ** 2
+
+
+def measure_jacobian(evaluate: Callable[[float, float], np.ndarray], at: tuple[float, float],
+                     steps: tuple[float, float] = JACOBIAN_STEPS) -> Jacobian:
+    """F = ``evaluate(G_t, g)`` at ``at`` and at the four points ``at`` +- ``steps``."""
+    at = (float(at[0]), float(at[1]))
+    centre = np.asarray(evaluate(*at), dtype=float)
+    plus, minus = np.empty((2, 2)), np.empty((2, 2))
+    for j in range(2):
+        for sign, columns in ((1, plus), (-1, minus)):
+            moved = list(at)
+            moved[j] += sign * steps[j]
+            columns[:, j] = evaluate(*moved)
+    return Jacobian(at, (float(steps[0]), float(steps[1])), centre, plus, minus)
+
+
+@dataclass
+class LinearResponses:
+    """The fit's two responses to first order about ``at`` = (G_t, g), F(theta) = ``values`` +
+    ``jacobian`` (theta - at), with the :class:`fit_clinical.Responses` methods that
+    :func:`fit_clinical.fit` calls, so that the fit's own solver (and its stop at a range's
+    edge) runs on them."""
+
+    at: tuple[float, float]
+    values: np.ndarray
+    jacobian: np.ndarray
+
+    def _value(self, i: int, shear: float, ratio: float) -> float:
+        d = np.array([shear - self.at[0], ratio - self.at[1]])
+        return float(self.values[i] + self.jacobian[i] @ d)
+
+    def slope(self, shear: float, ratio: float, solve: str = "") -> float:
+        return self._value(0, shear, ratio)
+
+    def ch(self, shear: float, ratio: float, solve: str = "") -> float:
+        return self._value(1, shear, ratio)
+
+
+def first_order_move(jacobian: np.ndarray, at: tuple[float, float], response_change,
+                     target_change=(0.0, 0.0),
+                     targets=(fit_clinical.SLOPE_TARGET.value, fit_clinical.CH_TARGET.value)
+                     ) -> dict:
+    """How far the fitted (G_t, g) move, to first order, when a choice moves the responses at
+    the fitted point ``at`` by ``response_change`` = F_variation(at) - F_baseline(at) and the
+    targets by ``target_change``.
+
+    The fit solves F(theta) = target; to first order about the baseline fit, F(theta) =
+    F_baseline(at) + dF + J (theta - at), so the move is d theta = J^-1 (d target - dF)
+    (``dG_t``, ``dg``: unclipped).  ``G_t``, ``g``: the fit itself (:func:`fit_clinical.fit`)
+    run on that linear model from ``at`` (tolerances 1e-9), so a move that leaves a parameter's
+    range stops it at the edge and fits the other parameter there, as the fit does;
+    ``in_range`` says whether the unclipped move stays inside both ranges."""
+    J = np.asarray(jacobian, dtype=float)
+    dF = np.asarray(response_change, dtype=float)
+    dT = np.asarray(target_change, dtype=float)
+    d_theta = np.linalg.solve(J, dT - dF)
+    model = LinearResponses(at, np.asarray(targets, dtype=float) + dF, J)
+    tight = [Target(**{**asdict(t), "value": value + change, "tolerance": 1e-9})
+             for t, value, change in ((fit_clinical.SLOPE_TARGET, targets[0], dT[0]),
+                                      (fit_clinical.CH_TARGET, targets[1], dT[1]))]
+    result = fit_clinical.fit(model, *tight, start=at, max_outer=100, max_evaluations=30)
+    unclipped = (at[0] + d_theta[0], at[1] + d_theta[1])
+    return {"dG_t": float(d_theta[0]), "dg": float(d_theta[1]),
+            "G_t_unclipped": float(unclipped[0]), "g_unclipped": float(unclipped[1]),
+            "in_range": bool(SHEAR.low <= unclipped[0] <= SHEAR.high
+                             and RATIO.low <= unclipped[1] <= RATIO.high),
+            "G_t": result.shear, "g": result.ratio, "G_t_status": result.shear_status,
+            "g_status": result.ratio_status}
+
+
+def evaluate_responses(responses: fit_clinical.Responses, label: str):
+    """F(G_t, g) = (CCT slope, CH) of ``responses`` (calibration refitted at each (G_t, g),
+    as the fit does), as a function."""
+    def evaluate(shear: float, ratio: float) -> np.ndarray:
+        return np.array([responses.slope(shear, ratio, label), responses.ch(shear, ratio, label)])
+    return evaluate
+
+
+def seed_points(source: Path, points: Path) -> int:
+    """Hard-links (or copies) the stored runs of ``source`` missing from ``points``, so that
+    the fit's runs are reused; returns how many.  A finished point's file is replaced, never
+    rewritten, so a link stays the point it was."""
+    points.mkdir(parents=True, exist_ok=True)
+    n = 0
+    for path in sorted(Path(source).glob("*.nc")):
+        target = points / path.name
+        if target.exists():
+            continue
+        try:
+            os.link(path, target)
+        except OSError:
+            shutil.copy2(path, target)
+        n += 1
+    return n
+
+
+def linear_main(args, passed: list[str], ap) -> int:
+    """``--linear FIT_JSON``: the first-order moves of every chosen variation about the fit."""
+    fit_path = Path(args.linear)
+    try:
+        fit_json = json.loads(fit_path.read_text())
+        at = (float(fit_json["fitted"][SHEAR.name]["value"]),
+              float(fit_json["fitted"][RATIO.name]["value"]))
+        fit_argv = shlex.split(fit_json["command"])[3:]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        ap.error(f"--linear: {fit_path} is not a fit's fit.json ({err})")
+    if not all(math.isfinite(x) for x in at):
+        ap.error(f"--linear: the fit in {fit_path} has no fitted values ({fit_json['error']})")
+    if fit_json["model_version"] != model_version():
+        ap.error(f"--linear: the fit in {fit_path} is of model version "
+                 f"{fit_json['model_version']}, this solver is {model_version()}: fit again")
+    try:
+        steps = _floats(args.steps)
+    except ValueError as err:
+        ap.error(f"--steps: {err}")
+    if len(steps) != 2 or min(steps) <= 0:
+        ap.error(f"--steps: two positive steps G_t,g, got {args.steps}")
+    out = args.out
+    own = ["--out", str(out / "linear"), "--points", str(args.points or out / "points")]
+    baseline = fit_clinical.fit_setup([*fit_argv, *passed, *own])
+    ccts = baseline.ccts
+    every = variations(fit_json["resolution"], ccts, baseline.reference_cct)
+    chosen, skipped = choose(every, fit_json["instrument"], args, ap)
+    checks = {w.strip() for w in args.check.split(",")} if args.check else set()
+    unknown = sorted(checks - {v.name for v in chosen})
+    if unknown:
+        ap.error(f"--check: {unknown[0]!r} is not a chosen variation (--list shows them)")
+    setups = {v.name: fit_clinical.fit_setup([*fit_argv, *passed, *v.argv, *own])
+              for v in chosen}
+
+    out.mkdir(parents=True, exist_ok=True)
+    points = args.points or out / "points"
+    fit_points = fit_path.parent / "points"
+    seeded = seed_points(fit_points, points) if fit_points.is_dir() else 0
+    log = FitLog(out / "evaluations.jsonl")
+    t0 = time.perf_counter()
+    targets = (baseline.slope_target.value, baseline.ch_target.value)
+    rows = []
+    with fit_clinical.point_runner(points, baseline.workers, baseline.warm_params(),
+                                   log.run) as runner:
+        jac = measure_jacobian(evaluate_responses(baseline.responses(runner, log), "jacobian"),
+                               at, steps)
+        J = jac.central
+        for v in chosen:
+            setup = setups[v.name]
+            print(f"== {v.name}: {v.moved}", flush=True)
+            responses = setup.responses(runner, log)
+            evaluate = evaluate_responses(responses, v.name)
+            value = jac.centre if v.name == BASELINE else evaluate(*at)
+            dF = value - jac.centre
+            dT = np.array([setup.slope_target.value, setup.ch_target.value]) - targets
+            row = {**{k: (list(x) if isinstance(x, tuple) else x) for k, x in asdict(v).items()},
+                   "variation": v.name, "slope_at_fit": float(value[0]),
+                   "CH_at_fit": float(value[1]), "dslope": float(dF[0]), "dCH": float(dF[1]),
+                   "dslope_target": float(dT[0]), "dCH_target": float(dT[1]),
+                   **first_order_move(J, at, dF, dT, targets)}
+            if v.name in checks:
+                row["check"] = second_order_check(evaluate, J, row, jac.centre + dT)
+            rows.append(row)
+    summary = {
+        "title": "First-order sensitivity of the clinical fit to its choices"
+                 + (" (about a DEVELOPMENT fit)" if fit_json["mode"] == "development" else ""),
+        "command": "python -m studies.fit_sensitivity "
+                   + " ".join(shlex.quote(a) for a in args.argv),
+        "fit": str(fit_path), "fit_command": fit_json["command"],
+        "model_version": model_version(), "resolution": fit_json["resolution"],
+        "instrument": fit_json["instrument"], "at": {"G_t": at[0], "g": at[1]},
+        "fit_reached": {"slope": fit_json["fitted"][SHEAR.name]["reached"],
+                        "CH": fit_json["fitted"][RATIO.name]["reached"]},
+        "fit_sensitivities": fit_json.get("sensitivities") or {},
+        "jacobian": {"steps": list(jac.steps), "centre": jac.centre.tolist(),
+                     "plus": jac.plus.tolist(), "minus": jac.minus.tolist(),
+                     "central": J.tolist(), "forward": jac.forward.tolist(),
+                     "backward": jac.backward.tolist(), "curvature": jac.curvature.tolist()},
+        "ranges": {"G_t": [SHEAR.low, SHEAR.high], "g": [RATIO.low, RATIO.high]},
+        "skipped": skipped, "runs_computed": sum(1 for r in log.runs if r["computed"]),
+        "runs_seeded": seeded, "wall_s": time.perf_counter() - t0, "rows": rows}
+    text = json.dumps(summary, indent=1, default=_json_default)
+    atomic_write(out / "linear.json", lambda tmp: tmp.write_text(text + "\n"))
+    table = linear_markdown(summary)
+    atomic_write(out / "linear.md", lambda tmp: tmp.write_text(table))
+    print(table)
+    return 0
+
+
+def second_order_check(evaluate, J: np.ndarray, row: dict, aim: np.ndarray) -> dict:
+    """The variation's responses at its first-order values, against ``aim`` (the baseline's
+    responses at the fit plus the target's move): the residual, and the Newton step from there
+    (J^-1 times the residual, the linearisation's error to second order)."""
+    theta = (row["G_t"], row["g"])
+    value = np.asarray(evaluate(*theta), dtype=float)
+    residual = value - aim
+    newton = -np.linalg.solve(J, residual)
+    return {"at": list(theta), "slope": float(value[0]), "CH": float(value[1]),
+            "residual": residual.tolist(), "newton_dG_t": float(newton[0]),
+            "newton_dg": float(newton[1])}
+
+
+def linear_markdown(summary: dict) -> str:
+    jac = summary["jacobian"]
+    J, (hG, hg) = jac["central"], jac["steps"]
+    fwd, bwd = jac["forward"], jac["backward"]
+    at = summary["at"]
+    lines = [f"# {summary['title']}", "", f"Command: `{summary['command']}`  ",
+             f"About the fit `{summary['fit_command']}` (model version "
+             f"{summary['model_version']}, {summary['resolution']} resolution, "
+             f"{summary['instrument']}): G_t {at['G_t']:.4f} kPa, g {at['g']:.4f}; "
+             f"{summary['runs_computed']} runs computed ({summary['runs_seeded']} of the fit's "
+             f"stored runs linked in), {summary['wall_s']:.0f} s.", "",
+             f"Jacobian by central differences (steps {hG:g} kPa, {hg:g}): dslope/dG_t "
+             f"{J[0][0]:+.4f}, dslope/dg {J[0][1]:+.3f} [mmHg per 100 um]; dCH/dG_t {J[1][0]:+.4f}, "
+             f"dCH/dg {J[1][1]:+.3f} [mmHg]. Forward / backward differences: "
+             f"{fwd[0][0]:+.4f}/{bwd[0][0]:+.4f}, {fwd[0][1]:+.3f}/{bwd[0][1]:+.3f}, "
+             f"{fwd[1][0]:+.4f}/{bwd[1][0]:+.4f}, {fwd[1][1]:+.3f}/{bwd[1][1]:+.3f}."]
+    sens = summary["fit_sensitivities"]
+    if sens:
+        lines[-1] += (f" The fit's own planes through its nearest evaluations: "
+                      f"{sens['dslope_dG_t']:+.4f}, {sens['dslope_dg']:+.3f}, "
+                      f"{sens['dCH_dG_t']:+.4f}, {sens['dCH_dg']:+.3f}.")
+    lines += ["", "| variation | group | moved | source | slope, CH at the fit (change) | "
+              "dG_t [kPa] | dg | G_t, g (first order, clipped) | in range |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for r in summary["rows"]:
+        target = (f"; target {r['dslope_target']:+g}, {r['dCH_target']:+g}"
+                  if r["dslope_target"] or r["dCH_target"] else "")
+        inside = "yes" if r["in_range"] else (f"NO: {r['G_t_status']}, {r['g_status']}")
+        lines.append(
+            f"| {r['variation']} | {r['group']} | {r['moved']} | {r['source']} | "
+            f"{r['slope_at_fit']:.3f}, {r['CH_at_fit']:.3f} ({r['dslope']:+.3f}, "
+            f"{r['dCH']:+.3f}{target}) | {r['dG_t']:+.3f} | {r['dg']:+.4f} | "
+            f"{r['G_t']:.3f}, {r['g']:.4f} | {inside} |")
+    checks = [r for r in summary["rows"] if "check" in r]
+    if checks:
+        lines += ["", "Checks at the first-order values (the variation's responses there, their "
+                  "residual against the baseline's plus the target's move, the Newton step "
+                  "from there):", ""]
+        for r in checks:
+            c = r["check"]
+            lines.append(f"- {r['variation']}: at G_t {c['at'][0]:.4f}, g {c['at'][1]:.4f}: slope "
+                         f"{c['slope']:.3f}, CH {c['CH']:.3f} (residual {c['residual'][0]:+.3f}, "
+                         f"{c['residual'][1]:+.3f}); Newton step {c['newton_dG_t']:+.3f} kPa, "
+                         f"{c['newton_dg']:+.4f}")
+    if summary["skipped"]:
+        lines += ["", "Not run: " + ", ".join(summary["skipped"])]
+    return "\n".join(lines) + "\n"
+
+
 # -- the command ----------------------------------------------------------------------------------
 def parse_args(argv):
     from api.cli.common import OneLineParser
 
     ap = OneLineParser(prog="fit_sensitivity", description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True, help="folder of the fits and their runs")
-    ap.add_argument("--resolution", default="paper", choices=CHOICES["resolution"])
-    ap.add_argument("--instrument", default="ora", choices=("ora", "paper"))
-    ap.add_argument("--cct", default=",".join(f"{c:g}" for c in CCT_POINTS),
-                    help="CCTs of the slope [mm] (the CCT variations shift them)")
+    ap.add_argument("--resolution", default=None, choices=CHOICES["resolution"],
+                    help="(default paper; with --linear the fit's own)")
+    ap.add_argument("--instrument", default=None, choices=("ora", "paper"),
+                    help="(default ora; with --linear the fit's own)")
+    ap.add_argument("--cct", default=None,
+                    help="CCTs of the slope [mm] (the CCT variations shift them; default "
+                         f"{','.join(f'{c:g}' for c in CCT_POINTS)}; with --linear the fit's own)")
     ap.add_argument("--only", default=None, metavar="NAMES",
                     help="only these variations (comma-separated; the baseline always runs)")
+    ap.add_argument("--skip", default=None, metavar="NAMES",
+                    help="not these variations (comma-separated)")
     ap.add_argument("--list", action="store_true", help="print the variations and stop")
+    ap.add_argument("--linear", default=None, metavar="FIT_JSON",
+                    help="no fits: the first-order moves about the fit of FIT_JSON (its "
+                         "fit.json), one evaluation of the responses per variation")
+    ap.add_argument("--steps", default=",".join(f"{h:g}" for h in JACOBIAN_STEPS),
+                    metavar="H_GT,H_G", help="--linear: the Jacobian's central-difference "
+                    "steps in G_t [kPa] and g")
+    ap.add_argument("--check", default=None, metavar="NAMES",
+                    help="--linear: evaluate these variations again at their first-order values")
+    ap.add_argument("--points", type=Path, default=None,
+                    help="--linear: folder of the runs (default <out>/points; the fit's stored "
+                         "runs are linked in)")
     return ap.parse_known_args(argv) + (ap,)
+
+
+def _names(text: str | None) -> set[str]:
+    return {w.strip() for w in text.split(",")} if text else set()
+
+
+def choose(every: list[Variation], instrument: str, args, ap) -> tuple[list[Variation], list[str]]:
+    """The variations of ``instrument`` that ``--only`` and ``--skip`` leave (the baseline
+    always), and the names of another instrument's."""
+    chosen = [v for v in every if v.instrument in (None, instrument)]
+    skipped = [v.name for v in every if v not in chosen]
+    names = {v.name for v in every}
+    for option, wanted in (("--only", _names(args.only)), ("--skip", _names(args.skip))):
+        unknown = sorted(wanted - names)
+        if unknown:
+            ap.error(f"{option}: {unknown[0]!r} is not a variation (--list shows them)")
+    if args.only:
+        chosen = [v for v in chosen if v.name == BASELINE or v.name in _names(args.only)]
+    chosen = [v for v in chosen if v.name == BASELINE or v.name not in _names(args.skip)]
+    return chosen, skipped
 
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args, passed, ap = parse_args(argv)
-    if "--out" in passed or "--points" in passed:
-        ap.error("--out, --points: set by this study per variation")
+    args.argv = argv
+    if "--out" in passed:
+        ap.error("--out: set by this study per variation")
+    if args.linear:
+        given = [o for o in ("resolution", "instrument", "cct") if getattr(args, o) is not None]
+        if given:
+            ap.error(f"--{given[0]}: with --linear the fit's own (its fit.json)")
+        return linear_main(args, passed, ap)
+    if args.points or args.check:
+        ap.error(f"--{'points' if args.points else 'check'}: with --linear only (the fits' runs "
+                 f"are stored in <out>/points)")
+    resolution, instrument = args.resolution or "paper", args.instrument or "ora"
+    cct_text = args.cct or ",".join(f"{c:g}" for c in CCT_POINTS)
     try:
-        ccts = _floats(args.cct)
+        ccts = _floats(cct_text)
     except ValueError as err:
         ap.error(f"--cct: {err}")
     if REFERENCE_CCT not in ccts:
         ap.error(f"--cct: the reference CCT {REFERENCE_CCT:g} mm must be among them, got "
-                 f"{args.cct}")
-    every = variations(args.resolution, ccts)
+                 f"{cct_text}")
+    every = variations(resolution, ccts)
     if args.list:
         for v in every:
             print(f"{v.name:18s} {v.group:14s} {v.moved}  [{v.source}]")
         return 0
-    chosen = [v for v in every if v.instrument in (None, args.instrument)]
-    skipped = [v.name for v in every if v not in chosen]
-    if args.only:
-        wanted = {w.strip() for w in args.only.split(",")}
-        unknown = sorted(wanted - {v.name for v in every})
-        if unknown:
-            ap.error(f"--only: {unknown[0]!r} is not a variation (--list shows them)")
-        chosen = [v for v in chosen if v.name == BASELINE or v.name in wanted]
-    common = ["--resolution", args.resolution, "--instrument", args.instrument,
-              "--cct", args.cct, *passed]
+    chosen, skipped = choose(every, instrument, args, ap)
+    common = ["--resolution", resolution, "--instrument", instrument, "--cct", cct_text, *passed]
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
