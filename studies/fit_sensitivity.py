@@ -31,6 +31,29 @@ sections 6 and 11).  Options this study does not know are passed to every fit un
 Outputs: ``<out>/<variation>/`` each fit's own records (``fit.json``, ``fit.md``, ...),
 ``<out>/points/`` the runs, ``<out>/sensitivity.json`` and ``<out>/sensitivity.md`` (the table:
 each fitted value and its move from the baseline fit).
+
+**First order** (``--linear FIT_JSON``, no fits): a full fit is about 150 runs, one evaluation
+of the responses F = (CCT slope, CH) about 12 (the slope's CCTs and the calibration's reference
+sweep, refitted at every (G_t, g) as the fit does).  At the fitted point theta* = (G_t*, g*) of
+a finished fit (its ``fit.json``; same model version) the 2x2 Jacobian J = dF/dtheta is
+measured by central differences (``--steps``, default 0.5 kPa and 0.02: 4 evaluations), each
+variation's F once at theta* with its choice moved, and its fitted values move by
+
+    d theta = J^-1 (d target - (F_variation(theta*) - F_baseline(theta*)))
+
+(a moved target needs no run).  The fit's own solver (``fit_clinical.fit``) is run on that
+linear model, so a move that leaves a range stops at the edge as the fit does, and the table
+says so.  ``--check NAMES`` evaluates those variations again at their first-order values: the
+residual there and the Newton step from it measure the linearisation's error.  The runs are
+stored in ``--points`` (default ``<out>/points``), the fit's own stored runs linked in first;
+the fit's options come from its ``fit.json`` (``--workers`` and the like may be added).
+
+    python -m studies.fit_sensitivity --out sens_linear --linear fit_ora/fit.json --workers 1 \\
+        --skip resolution-fine --check E0+
+
+Outputs: ``<out>/linear.json``, ``<out>/linear.md`` (the table: each variation's change of F at
+theta*, d theta, the first-order values clipped at the ranges' edges, whether the move stays in
+range) and ``<out>/evaluations.jsonl``.
 """
 
 from __future__ import annotations
@@ -404,22 +427,26 @@ def linear_main(args, passed: list[str], ap) -> int:
     rows = []
     with fit_clinical.point_runner(points, baseline.workers, baseline.warm_params(),
                                    log.run) as runner:
-        jac = measure_jacobian(evaluate_responses(baseline.responses(runner, log), "jacobian"),
-                               at, steps)
+        base_responses = baseline.responses(runner, log)
+        jac = measure_jacobian(evaluate_responses(base_responses, "jacobian"), at, steps)
         J = jac.central
         for v in chosen:
             setup = setups[v.name]
             print(f"== {v.name}: {v.moved}", flush=True)
-            responses = setup.responses(runner, log)
+            responses = base_responses if v.name == BASELINE else setup.responses(runner, log)
             evaluate = evaluate_responses(responses, v.name)
             value = jac.centre if v.name == BASELINE else evaluate(*at)
             dF = value - jac.centre
             dT = np.array([setup.slope_target.value, setup.ch_target.value]) - targets
+            one_sided = [np.linalg.solve(Jk, dT - dF) for Jk in (jac.forward, jac.backward)]
             row = {**{k: (list(x) if isinstance(x, tuple) else x) for k, x in asdict(v).items()},
                    "variation": v.name, "slope_at_fit": float(value[0]),
                    "CH_at_fit": float(value[1]), "dslope": float(dF[0]), "dCH": float(dF[1]),
                    "dslope_target": float(dT[0]), "dCH_target": float(dT[1]),
-                   **first_order_move(J, at, dF, dT, targets)}
+                   "calibration_max_error_mmHg": calibration_error(responses, at),
+                   **first_order_move(J, at, dF, dT, targets),
+                   "dG_t_one_sided": [float(d[0]) for d in one_sided],
+                   "dg_one_sided": [float(d[1]) for d in one_sided]}
             if v.name in checks:
                 row["check"] = second_order_check(evaluate, J, row, jac.centre + dT)
             rows.append(row)
@@ -447,6 +474,14 @@ def linear_main(args, passed: list[str], ap) -> int:
     atomic_write(out / "linear.md", lambda tmp: tmp.write_text(table))
     print(table)
     return 0
+
+
+def calibration_error(responses: fit_clinical.Responses, at: tuple[float, float]) -> float:
+    """The largest |IOPg_cal - IOP| of the calibration made at ``at`` on its reference sweep
+    [mmHg] (NaN for raw readings)."""
+    made = [e for e in responses.evaluations if e["response"] == "calibration_slope"
+            and (e[SHEAR.name], e[RATIO.name]) == at]
+    return float(made[-1]["max_error_mmHg"]) if made else math.nan
 
 
 def second_order_check(evaluate, J: np.ndarray, row: dict, aim: np.ndarray) -> dict:
@@ -477,23 +512,28 @@ def linear_markdown(summary: dict) -> str:
              f"{J[0][0]:+.4f}, dslope/dg {J[0][1]:+.3f} [mmHg per 100 um]; dCH/dG_t {J[1][0]:+.4f}, "
              f"dCH/dg {J[1][1]:+.3f} [mmHg]. Forward / backward differences: "
              f"{fwd[0][0]:+.4f}/{bwd[0][0]:+.4f}, {fwd[0][1]:+.3f}/{bwd[0][1]:+.3f}, "
-             f"{fwd[1][0]:+.4f}/{bwd[1][0]:+.4f}, {fwd[1][1]:+.3f}/{bwd[1][1]:+.3f}."]
+             f"{fwd[1][0]:+.4f}/{bwd[1][0]:+.4f}, {fwd[1][1]:+.3f}/{bwd[1][1]:+.3f}; the moves "
+             f"in brackets are those with the forward and with the backward differences, "
+             f"unclipped: how far the answer depends on where F is linearised."]
     sens = summary["fit_sensitivities"]
     if sens:
         lines[-1] += (f" The fit's own planes through its nearest evaluations: "
                       f"{sens['dslope_dG_t']:+.4f}, {sens['dslope_dg']:+.3f}, "
                       f"{sens['dCH_dG_t']:+.4f}, {sens['dCH_dg']:+.3f}.")
     lines += ["", "| variation | group | moved | source | slope, CH at the fit (change) | "
-              "dG_t [kPa] | dg | G_t, g (first order, clipped) | in range |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "calibration max error [mmHg] | dG_t [kPa] (one-sided J) | dg (one-sided J) | "
+              "G_t, g (first order, clipped) | in range |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in summary["rows"]:
         target = (f"; target {r['dslope_target']:+g}, {r['dCH_target']:+g}"
                   if r["dslope_target"] or r["dCH_target"] else "")
         inside = "yes" if r["in_range"] else (f"NO: {r['G_t_status']}, {r['g_status']}")
+        (fG, bG), (fg, bg) = r["dG_t_one_sided"], r["dg_one_sided"]
         lines.append(
             f"| {r['variation']} | {r['group']} | {r['moved']} | {r['source']} | "
             f"{r['slope_at_fit']:.3f}, {r['CH_at_fit']:.3f} ({r['dslope']:+.3f}, "
-            f"{r['dCH']:+.3f}{target}) | {r['dG_t']:+.3f} | {r['dg']:+.4f} | "
+            f"{r['dCH']:+.3f}{target}) | {_fmt(r['calibration_max_error_mmHg'], '.3f')} | "
+            f"{r['dG_t']:+.3f} ({fG:+.2f}, {bG:+.2f}) | {r['dg']:+.4f} ({fg:+.3f}, {bg:+.3f}) | "
             f"{r['G_t']:.3f}, {r['g']:.4f} | {inside} |")
     checks = [r for r in summary["rows"] if "check" in r]
     if checks:
