@@ -44,7 +44,7 @@ import math
 import numpy as np
 
 from ..kernels.fluid import tait_pressure_at
-from ..kernels.membrane import cornea_polygon_volume
+from ..kernels.membrane import cornea_polygon_volume, enclosed_volume_rate
 from ..kernels.nodes import WALL
 
 LN10 = math.log(10.0)
@@ -228,28 +228,6 @@ class CompliantWall:
         """Mean pressure [Pa] on the walls from the pressures ``p_wall`` [Pa] of the wall nodes
         (in the order of ``nodes``), weighted by the volume each node sweeps."""
         return float(np.dot(self.pressure_weight, p_wall))
-
-
-def _closed_polygon(xc, yc, y_axis):
-    xs = np.concatenate(([0.0], xc, [0.0]))
-    ys = np.concatenate(([y_axis], yc, [y_axis]))
-    return xs, ys
-
-
-def enclosed_volume_rate(xc, yc, vxc, vyc, y_axis):
-    """d/dt [m^3/s] of the volume swept about the axis by the meridian polygon (0, y_axis) -
-    cornea polyline (xc, yc) - (0, y_axis), whose volume |S| is computed by
-    ``cornea_polygon_volume``: S = pi/3 sum (x_a^2 + x_a x_b + x_b^2)(y_a - y_b) over its edges,
-    differentiated exactly for the node velocities (vxc, vyc) [m/s]."""
-    xs, ys = _closed_polygon(xc, yc, y_axis)
-    us = np.concatenate(([0.0], vxc, [0.0]))
-    ws = np.concatenate(([0.0], vyc, [0.0]))
-    xa, xb, ya, yb = xs[:-1], xs[1:], ys[:-1], ys[1:]
-    ua, ub, wa, wb = us[:-1], us[1:], ws[:-1], ws[1:]
-    S = np.sum((xa * xa + xa * xb + xb * xb) * (ya - yb))
-    dS = np.sum(((2 * xa + xb) * ua + (xa + 2 * xb) * ub) * (ya - yb)
-                + (xa * xa + xa * xb + xb * xb) * (wa - wb))
-    return math.copysign(1.0, S) * math.pi / 3.0 * dS
 
 
 def wall_span(si, geometry):

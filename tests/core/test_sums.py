@@ -1,0 +1,62 @@
+"""numpy's sum in compiled kernels (airpuff_core/kernels/sums.py): the same value as ``np.sum`` to
+the last bit for every length (below, at and across the pairwise blocks of 8 and 128 values,
+whose order of additions differs), and the compliant globe's volume rate, which sums so, against
+numpy's form of the same sums and against the exact derivative of the enclosed volume."""
+
+import math
+
+import numpy as np
+import pytest
+
+from airpuff_core.kernels.membrane import cornea_polygon_volume, enclosed_volume_rate
+from airpuff_core.kernels.sums import numpy_sum, pairwise_sum
+
+
+@pytest.mark.parametrize("count", [0, 1, 7, 8, 9, 15, 16, 17, 127, 128, 129, 255, 256, 257, 1000,
+                                   4099, 100003])
+def test_the_sum_is_numpys_bit_for_bit(count):
+    rng = np.random.default_rng(count)
+    # terms of widely different size and both signs: the order of the additions shows
+    values = rng.standard_normal(count) * 10.0 ** rng.integers(-8, 8, count)
+    assert numpy_sum(values) == np.sum(values)
+    if count > 10:
+        assert pairwise_sum(values, 3, count - 10) == np.sum(values[3:count - 7])
+
+
+def test_the_order_matters_for_these_values():
+    """The check above can fail: a plain left-to-right sum of the same values differs."""
+    values = np.random.default_rng(1).standard_normal(1000) * 10.0 ** np.arange(-8, 8).repeat(63)[:1000]
+    in_order = 0.0
+    for v in values:
+        in_order += v
+    assert in_order != np.sum(values)
+
+
+def numpy_volume_rate(xc, yc, vxc, vyc, y_axis):
+    """The enclosed volume's rate as numpy expressions (arrays of the polygon's edges)."""
+    xs = np.concatenate(([0.0], xc, [0.0]))
+    ys = np.concatenate(([y_axis], yc, [y_axis]))
+    us = np.concatenate(([0.0], vxc, [0.0]))
+    ws = np.concatenate(([0.0], vyc, [0.0]))
+    xa, xb, ya, yb = xs[:-1], xs[1:], ys[:-1], ys[1:]
+    ua, ub, wa, wb = us[:-1], us[1:], ws[:-1], ws[1:]
+    S = np.sum((xa * xa + xa * xb + xb * xb) * (ya - yb))
+    dS = np.sum(((2 * xa + xb) * ua + (xa + 2 * xb) * ub) * (ya - yb)
+                + (xa * xa + xa * xb + xb * xb) * (wa - wb))
+    return math.copysign(1.0, S) * math.pi / 3.0 * dS
+
+
+@pytest.mark.parametrize("nodes", [12, 26, 51, 200])
+def test_the_volume_rate_is_numpys_sum_and_the_exact_derivative(nodes):
+    rng = np.random.default_rng(nodes)
+    phi = np.linspace(0.0, 1.0, nodes)
+    X = 7e-3 * np.sin(phi)
+    Y = 7e-3 * np.cos(phi) + 1e-5 * rng.standard_normal(nodes)
+    VX, VY = rng.normal(size=nodes), rng.normal(size=nodes)
+    for y_axis in (0.0, Y[-1]):
+        rate = enclosed_volume_rate(X, Y, VX, VY, y_axis)
+        assert rate == numpy_volume_rate(X, Y, VX, VY, y_axis)
+        h = 1e-9
+        fd = (cornea_polygon_volume(X + h * VX, Y + h * VY, y_axis)
+              - cornea_polygon_volume(X - h * VX, Y - h * VY, y_axis)) / (2 * h)
+        assert rate == pytest.approx(fd, rel=1e-6)
