@@ -34,6 +34,7 @@ from ..kernels.membrane import add_pressure_loads, max_wave_speed
 from ..kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell, bending_moments,
                              max_bending_frequency, shell_energy, shell_internal_forces,
                              shell_resultants, shell_strains, shell_work, work_rows)
+from ..kernels.viscoelastic import paired_overstress_work
 from .reference import MEMBRANE_SAFETY, MembraneModel, build_membrane
 from .tissue import NO_HISTORY
 
@@ -144,8 +145,8 @@ class KirchhoffShell(MembraneModel):
         change of the bending strains from ``bend_a`` to ``bend_b`` (``history_strains``)."""
         area = self.bending_area
         cells = area.shape[0]
-        work += np.sum(area * (q[2, :cells] * (bend_b[0] - bend_a[0])
-                               + q[3, :cells] * (bend_b[1] - bend_a[1])))
+        work += paired_overstress_work(area, q[2, :cells], q[3, :cells], bend_b[0], bend_a[0],
+                                       bend_b[1], bend_a[1])
         return work
 
     stencil = 2  # the force on a node depends on the nodes up to two away

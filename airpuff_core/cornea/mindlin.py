@@ -19,6 +19,7 @@ from ..kernels.mindlin import (SHEAR_CORRECTION, advance_mindlin, balance_direct
                                max_director_frequency, mindlin_energy, mindlin_internal_forces,
                                mindlin_rows, mindlin_resultants, mindlin_strains, mindlin_work)
 from ..kernels.shell import LIMBUS_CLAMPED, segment_angles
+from ..kernels.viscoelastic import row_overstress_work
 from .kirchhoff import KirchhoffShell, plate_rigidity, shell_fields
 from .reference import build_membrane
 from .tissue import NO_HISTORY
@@ -188,7 +189,7 @@ class MindlinShell(KirchhoffShell):
         """As ``KirchhoffShell``'s, plus the transverse shear row's work over the change of the
         shear strain."""
         work = super().add_overstress_bending_work(work, q, bend_a, bend_b)
-        work += np.sum(self.A0 * q[4, :self.n - 1] * (bend_b[2] - bend_a[2]))
+        work += row_overstress_work(self.A0, q[4, :self.n - 1], bend_b[2], bend_a[2])
         return work
 
     def apex_moment(self, X, Y, overstress=None):

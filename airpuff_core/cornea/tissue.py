@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.viscoelastic import prony_step_factors
+from ..kernels.viscoelastic import paired_overstress_work, prony_step_factors
 
 # the history arguments of the cornea kernels of an elastic cornea (not read; rows enough for the
 # largest model's five resultants)
@@ -180,6 +180,6 @@ class ViscoelasticTissue:
         self._trial_strains = (X1, Y1, strains_b)
         E1b, E2b, *bend_b = strains_b
         q = 0.5 * (overstress0.sum(axis=0) + overstress1.sum(axis=0))
-        work = np.sum(m.A0 * (q[0, :n - 1] * (E1b - E1a) + q[1, :n - 1] * (E2b - E2a)))
+        work = paired_overstress_work(m.A0, q[0, :n - 1], q[1, :n - 1], E1b, E1a, E2b, E2a)
         work = m.add_overstress_bending_work(work, q, bend_a, bend_b)
         return float(work)

@@ -27,6 +27,8 @@ Computational Inelasticity, Springer 1998, section 10.3; Simo, Comput. Methods A
 import numpy as np
 from numba import njit
 
+from .sums import numpy_sum
+
 
 @njit(cache=True)
 def prony_step_factors(dt, g, tau, decay, weight):
@@ -91,3 +93,27 @@ def relaxation_function(t, g, tau):
     for gi, ti in zip(g, tau):
         G = G - gi * (1.0 - np.exp(-t / ti))
     return G
+
+
+@njit(cache=True)
+def paired_overstress_work(area, q_a, q_b, a_new, a_old, b_new, b_old):
+    """Work [J] of two rows of mean overstresses q_a, q_b over the changes of their strains
+    a_old -> a_new and b_old -> b_new, on the areas ``area`` [m^2]:
+
+        sum area (q_a (a_new - a_old) + q_b (b_new - b_old)),
+
+    term by term as numpy forms it, summed as ``np.sum`` does (``sums.numpy_sum``)."""
+    terms = np.empty(area.shape[0])
+    for i in range(area.shape[0]):
+        terms[i] = area[i] * (q_a[i] * (a_new[i] - a_old[i]) + q_b[i] * (b_new[i] - b_old[i]))
+    return numpy_sum(terms)
+
+
+@njit(cache=True)
+def row_overstress_work(area, q, new, old):
+    """Work [J] of one row of mean overstresses q over the change of its strain old -> new on
+    the areas ``area`` [m^2]: sum (area q) (new - old), summed as ``np.sum`` does."""
+    terms = np.empty(area.shape[0])
+    for i in range(area.shape[0]):
+        terms[i] = area[i] * q[i] * (new[i] - old[i])
+    return numpy_sum(terms)

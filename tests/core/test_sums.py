@@ -1,7 +1,8 @@
 """numpy's sum in compiled kernels (airpuff_core/kernels/sums.py): the same value as ``np.sum`` to
 the last bit for every length (below, at and across the pairwise blocks of 8 and 128 values,
-whose order of additions differs), and the compliant globe's volume rate, which sums so, against
-numpy's form of the same sums and against the exact derivative of the enclosed volume."""
+whose order of additions differs); the compliant globe's volume rate, which sums so, against
+numpy's form of the same sums and against the exact derivative of the enclosed volume; the
+overstresses' work over a step (kernels/viscoelastic.py) against numpy's form, bit for bit."""
 
 import math
 
@@ -10,6 +11,7 @@ import pytest
 
 from airpuff_core.kernels.membrane import cornea_polygon_volume, enclosed_volume_rate
 from airpuff_core.kernels.sums import numpy_sum, pairwise_sum
+from airpuff_core.kernels.viscoelastic import paired_overstress_work, row_overstress_work
 
 
 @pytest.mark.parametrize("count", [0, 1, 7, 8, 9, 15, 16, 17, 127, 128, 129, 255, 256, 257, 1000,
@@ -60,3 +62,16 @@ def test_the_volume_rate_is_numpys_sum_and_the_exact_derivative(nodes):
         fd = (cornea_polygon_volume(X + h * VX, Y + h * VY, y_axis)
               - cornea_polygon_volume(X - h * VX, Y - h * VY, y_axis)) / (2 * h)
         assert rate == pytest.approx(fd, rel=1e-6)
+
+
+@pytest.mark.parametrize("segments", [25, 50, 150])
+def test_the_overstress_work_is_numpys_bit_for_bit(segments):
+    rng = np.random.default_rng(segments)
+    area = rng.uniform(1e-7, 1e-6, segments)  # m^2
+    q_a, q_b = rng.normal(0.0, 50.0, segments), rng.normal(0.0, 5.0, segments)  # N/m
+    a_old, b_old = rng.normal(0.0, 1e-2, segments), rng.normal(0.0, 1e-2, segments)
+    a_new = a_old + rng.normal(0.0, 1e-6, segments)
+    b_new = b_old + rng.normal(0.0, 1e-6, segments)
+    assert (paired_overstress_work(area, q_a, q_b, a_new, a_old, b_new, b_old)
+            == np.sum(area * (q_a * (a_new - a_old) + q_b * (b_new - b_old))))
+    assert row_overstress_work(area, q_a, a_new, a_old) == np.sum(area * q_a * (a_new - a_old))
