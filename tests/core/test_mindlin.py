@@ -166,11 +166,13 @@ def test_stable_substep_bounds_the_highest_frequency(n, G_t):
 
 def test_option_at_the_edges():
     """transverse_shear_modulus: kPa, from the preset (paper 0 = Kirchhoff-Love when the shell
-    is chosen, clinical 9.48), explicit values override it, bad values name the range."""
+    is chosen, clinical the fitted 12.33, clinical_published 9.48), explicit values override
+    it, bad values name the range."""
     assert RunParams().transverse_shear_modulus == 0.0
-    assert RunParams(model="clinical").transverse_shear_modulus == 9.48
+    assert RunParams(model="clinical").transverse_shear_modulus == 12.33
+    assert RunParams(model="clinical_published").transverse_shear_modulus == 9.48
     assert RunParams(model="clinical", transverse_shear_modulus=0).transverse_shear_modulus == 0
-    assert RunParams(model="clinical").si().transverse_shear_modulus_Pa == pytest.approx(9480.0)
+    assert RunParams(model="clinical").si().transverse_shear_modulus_Pa == pytest.approx(12330.0)
     for bad in (-1.0, 2e5, "x"):
         with pytest.raises(ParameterError, match=r"invalid transverse_shear_modulus=.*kPa"):
             RunParams(transverse_shear_modulus=bad)

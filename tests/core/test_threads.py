@@ -219,11 +219,11 @@ import numpy as np
 from airpuff_core import RunParams, simulate
 from airpuff_core.threads import max_threads
 assert max_threads() >= 2, max_threads()
-params = RunParams(resolution="coarse", model="clinical", instrument="ora", t_end=14.0)
+params = RunParams(resolution="coarse", model="clinical", instrument="ora", t_end=16.0)
 one = simulate(params, threads=1).to_dataset()
 two = simulate(params, threads=2).to_dataset()
 assert one.attrs["solver_threads"] == 1 and two.attrs["solver_threads"] == 2
-assert one.attrs["solver_pulse_switch_off_ms"] < 14.0, one.attrs["solver_pulse_switch_off_ms"]
+assert one.attrs["solver_pulse_switch_off_ms"] < 16.0, one.attrs["solver_pulse_switch_off_ms"]
 differ = [name for name in one.data_vars
           if not np.array_equal(one[name].values, two[name].values, equal_nan=True)]
 differ += [name for name in ("solver_pulse_applanation_detected_ms", "solver_pulse_switch_off_ms")
