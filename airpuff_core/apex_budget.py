@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels.membrane import add_pressure_loads
+from .kernels.membrane import region_pressure_loads
 
 
 def apex_budget(model):
@@ -22,22 +22,15 @@ def apex_budget(model):
     pressures (the IOP included), the equilibrium law's resistance (its internal forces: minus
     the IOP's membrane tension plus bending and shear), the tissue's overstress' and minus the
     nodes' inertia, their acceleration that of the last step."""
-    region = slice(0, model.n_apex_fit)
+    n_fit = model.n_apex_fit
+    region = slice(0, n_fit)
     X, Y = model.X, model.Y
     cornea, tissue = model.cornea, model.tissue
-    Fx, Fy = np.zeros_like(X), np.zeros_like(Y)
-    add_pressure_loads(X, Y, np.ones_like(X), Fx, Fy)
-    area = float(Fy[region].sum())
-    Fx[:] = 0.0
-    Fy[:] = 0.0
-    add_pressure_loads(X, Y, model.p_interface, Fx, Fy)
-    fluid = float(Fy[region].sum()) / area
-    Fx[:] = 0.0
-    Fy[:] = 0.0
     jet = np.empty_like(X)
     model.jet.pressures(model.t, model.chamber.phi_cornea, jet)
-    add_pressure_loads(X, Y, jet, Fx, Fy)
-    jet_mean = float(Fy[region].sum()) / area
+    area, fluid, jet_mean = region_pressure_loads(X, Y, model.p_interface, jet, n_fit)
+    fluid /= area
+    jet_mean /= area
     equilibrium = float(cornea.internal_forces(X, Y)[1][region].sum()) / area
     overstress = 0.0
     if tissue.viscoelastic:  # the elastic tissue adds none (skips a force evaluation)

@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .sums import numpy_sum
+from .sums import numpy_sum, pairwise_sum
 
 
 @njit(cache=True)
@@ -93,6 +93,27 @@ def add_pressure_loads(X, Y, q, Fx, Fy):
         Fy[s] += q[s] * wa * dx
         Fx[s + 1] += q[s + 1] * wb * (-dy)
         Fy[s + 1] += q[s + 1] * wb * dx
+
+
+@njit(cache=True)
+def region_pressure_loads(X, Y, q_fluid, q_jet, n_region):
+    """The y components [N] of the lumped loads (``add_pressure_loads``) summed over the nodes
+    i < n_region: (a, F_fluid, F_jet) of a unit net inside pressure (a = sum a_p,i, the lumped
+    area), of q_fluid and of q_jet [Pa].  Each sum is numpy's ``np.sum`` of the loads, formed in
+    its order (``sums.pairwise_sum``), so the apex budget keeps its bits."""
+    n = X.shape[0]
+    Fx, Fy = np.zeros(n), np.zeros(n)
+    add_pressure_loads(X, Y, np.ones(n), Fx, Fy)
+    area = pairwise_sum(Fy, 0, n_region)
+    Fx[:] = 0.0
+    Fy[:] = 0.0
+    add_pressure_loads(X, Y, q_fluid, Fx, Fy)
+    fluid = pairwise_sum(Fy, 0, n_region)
+    Fx[:] = 0.0
+    Fy[:] = 0.0
+    add_pressure_loads(X, Y, q_jet, Fx, Fy)
+    jet = pairwise_sum(Fy, 0, n_region)
+    return area, fluid, jet
 
 
 @njit(cache=True)
