@@ -34,7 +34,7 @@ from ..kernels.membrane import add_pressure_loads, max_wave_speed
 from ..kernels.shell import (LIMBUS_CLAMPED, LIMBUS_PINNED, advance_shell, bending_moments,
                              max_bending_frequency, shell_energy, shell_internal_forces,
                              shell_resultants, shell_strains, shell_work, work_rows)
-from ..kernels.viscoelastic import paired_overstress_work
+from ..kernels.viscoelastic import bending_overstress_energy, paired_overstress_work
 from .reference import MEMBRANE_SAFETY, MembraneModel, build_membrane
 from .tissue import NO_HISTORY
 
@@ -138,7 +138,7 @@ class KirchhoffShell(MembraneModel):
         cells = area.shape[0]
         qMs, qMt = overstress[2, :cells], overstress[3, :cells]
         inv = 1.0 / (self.D * (1.0 - self.nu * self.nu))
-        return np.sum(area * inv * (qMs * qMs - 2.0 * self.nu * qMs * qMt + qMt * qMt))
+        return bending_overstress_energy(area, inv, self.nu, qMs, qMt)
 
     def add_overstress_bending_work(self, work, q, bend_a, bend_b):
         """``work`` [J] plus the work of the mean overstresses ``q`` of the bending rows over the

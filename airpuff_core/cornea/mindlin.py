@@ -19,7 +19,7 @@ from ..kernels.mindlin import (SHEAR_CORRECTION, advance_mindlin, balance_direct
                                max_director_frequency, mindlin_energy, mindlin_internal_forces,
                                mindlin_rows, mindlin_resultants, mindlin_strains, mindlin_work)
 from ..kernels.shell import LIMBUS_CLAMPED, segment_angles
-from ..kernels.viscoelastic import row_overstress_work
+from ..kernels.viscoelastic import row_overstress_energy, row_overstress_work
 from .kirchhoff import KirchhoffShell, plate_rigidity, shell_fields
 from .reference import build_membrane
 from .tissue import NO_HISTORY
@@ -182,7 +182,7 @@ class MindlinShell(KirchhoffShell):
         """As ``KirchhoffShell``'s, plus the transverse shear row: q_Q^2 / S on A0."""
         bending = super().overstress_bending_energy(overstress)
         qQ = overstress[4, :self.n - 1]
-        bending += np.sum(self.A0 * qQ * qQ) / self.S
+        bending += row_overstress_energy(self.A0, qQ) / self.S
         return bending
 
     def add_overstress_bending_work(self, work, q, bend_a, bend_b):

@@ -31,7 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.viscoelastic import paired_overstress_work, prony_step_factors
+from ..kernels.viscoelastic import (membrane_overstress_energy, paired_overstress_work,
+                                   prony_step_factors)
 
 # the history arguments of the cornea kernels of an elastic cornea (not read; rows enough for the
 # largest model's five resultants)
@@ -158,7 +159,7 @@ class ViscoelasticTissue:
         energy = 0.0
         for i in range(self.g.shape[0]):
             qN1, qN2 = overstress[i, 0, :n - 1], overstress[i, 1, :n - 1]
-            membrane = np.sum(m.A0 * (c11 * qN1 * qN1 + 2.0 * c12 * qN1 * qN2 + c22 * qN2 * qN2))
+            membrane = membrane_overstress_energy(m.A0, c11, c12, c22, qN1, qN2)
             bending = m.overstress_bending_energy(overstress[i])
             energy += self.g_inf / (2.0 * self.g[i]) * (membrane + bending)
         return float(energy)

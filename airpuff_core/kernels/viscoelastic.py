@@ -117,3 +117,44 @@ def row_overstress_work(area, q, new, old):
     for i in range(area.shape[0]):
         terms[i] = area[i] * q[i] * (new[i] - old[i])
     return numpy_sum(terms)
+
+
+@njit(cache=True)
+def membrane_overstress_energy(area, c11, c12, c22, q1, q2):
+    """q . C^-1 q [J] of the membrane overstresses q1, q2 on the areas ``area`` [m^2], with the
+    compliance (c11, c12, c22) per segment [m/N]:
+
+        sum area (c11 q1^2 + 2 c12 q1 q2 + c22 q2^2),
+
+    term by term as numpy forms it, summed as ``np.sum`` does (``sums.numpy_sum``)."""
+    terms = np.empty(area.shape[0])
+    for i in range(area.shape[0]):
+        terms[i] = area[i] * (c11[i] * q1[i] * q1[i] + 2.0 * c12[i] * q1[i] * q2[i]
+                              + c22[i] * q2[i] * q2[i])
+    return numpy_sum(terms)
+
+
+@njit(cache=True)
+def bending_overstress_energy(area, inverse, nu, q_s, q_t):
+    """q . C^-1 q [J] of the bending overstresses q_s, q_t with C = D [[1, nu], [nu, 1]],
+    inverse = 1 / (D (1 - nu^2)):
+
+        sum area inverse (q_s^2 - 2 nu q_s q_t + q_t^2),
+
+    term by term as numpy forms it, summed as ``np.sum`` does."""
+    two_nu = 2.0 * nu
+    terms = np.empty(area.shape[0])
+    for i in range(area.shape[0]):
+        terms[i] = area[i] * inverse * (q_s[i] * q_s[i] - two_nu * q_s[i] * q_t[i]
+                                        + q_t[i] * q_t[i])
+    return numpy_sum(terms)
+
+
+@njit(cache=True)
+def row_overstress_energy(area, q):
+    """sum area q^2 of one row of overstresses q on the areas ``area`` [m^2] (its energy times
+    the row's stiffness), term by term as numpy forms it, summed as ``np.sum`` does."""
+    terms = np.empty(area.shape[0])
+    for i in range(area.shape[0]):
+        terms[i] = area[i] * q[i] * q[i]
+    return numpy_sum(terms)

@@ -2,16 +2,21 @@
 the last bit for every length (below, at and across the pairwise blocks of 8 and 128 values,
 whose order of additions differs); the compliant globe's volume rate, which sums so, against
 numpy's form of the same sums and against the exact derivative of the enclosed volume; the
-overstresses' work over a step (kernels/viscoelastic.py) against numpy's form, bit for bit."""
+overstresses' work over a step and their stored energy (kernels/viscoelastic.py) and the apex
+budget's pressure-load sums (kernels/membrane.py) against numpy's form, bit for bit."""
 
 import math
 
 import numpy as np
 import pytest
 
-from airpuff_core.kernels.membrane import cornea_polygon_volume, enclosed_volume_rate
+from airpuff_core.kernels.membrane import (add_pressure_loads, cornea_polygon_volume,
+                                          enclosed_volume_rate, region_pressure_loads)
 from airpuff_core.kernels.sums import numpy_sum, pairwise_sum
-from airpuff_core.kernels.viscoelastic import paired_overstress_work, row_overstress_work
+from airpuff_core.kernels.viscoelastic import (bending_overstress_energy,
+                                              membrane_overstress_energy,
+                                              paired_overstress_work, row_overstress_energy,
+                                              row_overstress_work)
 
 
 @pytest.mark.parametrize("count", [0, 1, 7, 8, 9, 15, 16, 17, 127, 128, 129, 255, 256, 257, 1000,
@@ -75,3 +80,34 @@ def test_the_overstress_work_is_numpys_bit_for_bit(segments):
     assert (paired_overstress_work(area, q_a, q_b, a_new, a_old, b_new, b_old)
             == np.sum(area * (q_a * (a_new - a_old) + q_b * (b_new - b_old))))
     assert row_overstress_work(area, q_a, a_new, a_old) == np.sum(area * q_a * (a_new - a_old))
+
+
+@pytest.mark.parametrize("segments", [25, 50, 150])
+def test_the_overstress_energies_are_numpys_bit_for_bit(segments):
+    """The stored energy's sums (``ViscoelasticTissue.stored_energy``) against numpy's form."""
+    rng = np.random.default_rng(segments + 1)
+    area = rng.uniform(1e-7, 1e-6, segments)  # m^2
+    c11, c22 = rng.uniform(1e-4, 1e-3, segments), rng.uniform(1e-4, 1e-3, segments)  # m/N
+    c12 = -0.3 * rng.uniform(1e-4, 1e-3, segments)
+    q1, q2 = rng.normal(0.0, 50.0, segments), rng.normal(0.0, 5.0, segments)
+    assert (membrane_overstress_energy(area, c11, c12, c22, q1, q2)
+            == np.sum(area * (c11 * q1 * q1 + 2.0 * c12 * q1 * q2 + c22 * q2 * q2)))
+    inverse, nu = 1.0 / (3e-5 * (1.0 - 0.49 ** 2)), 0.49
+    assert (bending_overstress_energy(area, inverse, nu, q1, q2)
+            == np.sum(area * inverse * (q1 * q1 - 2.0 * nu * q1 * q2 + q2 * q2)))
+    assert row_overstress_energy(area, q1) == np.sum(area * q1 * q1)
+
+
+@pytest.mark.parametrize("nodes", [5, 8, 11, 50])
+def test_the_apex_pressure_loads_are_numpys_sums(nodes):
+    """The apex budget's load sums (``apex_budget``) against the loads summed by numpy."""
+    rng = np.random.default_rng(nodes)
+    phi = np.linspace(0.0, 0.8, 50)
+    X, Y = 7.8e-3 * np.sin(phi), 7.8e-3 * np.cos(phi) + rng.normal(0.0, 1e-6, 50)
+    q_fluid, q_jet = rng.normal(2e3, 5e2, 50), rng.normal(8e3, 1e3, 50)  # Pa
+    expected = []
+    for q in (np.ones(50), q_fluid, q_jet):
+        Fx, Fy = np.zeros(50), np.zeros(50)
+        add_pressure_loads(X, Y, q, Fx, Fy)
+        expected.append(Fy[:nodes].sum())
+    assert region_pressure_loads(X, Y, q_fluid, q_jet, nodes) == tuple(expected)
