@@ -36,7 +36,8 @@ from .kernels.divergence_damping import damping_increments, damping_rate
 from .kernels.nodes import AXIS_EPS
 
 SAFETY = 1.0  # forward-Euler sub-steps of at most SAFETY / spectral radius (limit 2)
-POWER_ITERATIONS = 40
+POWER_ITERATIONS = 40  # from a random start, at the first build
+WARM_ITERATIONS = 8  # from the last build's vector, at the later builds
 
 
 class DivergenceDamping:
@@ -51,6 +52,7 @@ class DivergenceDamping:
         self.weight = None
         self.radius_unit = 0.0  # spectral radius of W^-1 D_f^T diag(h) W D_f [1/(m s) per c]
         self.built_for = -1
+        self._vector = None  # the power iteration's last vector (the next build's start)
         n = h.shape[0]
         self._work = np.empty((4, n))  # scratch of the kernels
         self._rate_work = np.empty((2, 2 * n))
@@ -97,11 +99,19 @@ class DivergenceDamping:
                      self._rate_work, out_x, out_y)
 
     def _spectral_radius(self):
+        """The spectral radius of W^-1 D_f^T diag(h) W D_f by power iterations: POWER_ITERATIONS
+        from a fixed random start at the first build, WARM_ITERATIONS from the last build's
+        vector at the later ones (D changes little between builds, so its dominant mode too)."""
         n = self.h.shape[0]
-        f = np.random.default_rng(0).standard_normal(2 * n)
+        if self._vector is None:
+            f = np.random.default_rng(0).standard_normal(2 * n)
+            iterations = POWER_ITERATIONS
+        else:
+            f = self._vector
+            iterations = WARM_ITERATIONS
         ox, oy = np.empty(n), np.empty(n)
         lam = 0.0
-        for _ in range(POWER_ITERATIONS):
+        for _ in range(iterations):
             f[:n] *= self.free_x
             f[n:] *= self.free_y
             f /= np.linalg.norm(f)
@@ -109,6 +119,7 @@ class DivergenceDamping:
             g = np.concatenate([ox, oy])
             lam = float(np.linalg.norm(g))
             f = g
+        self._vector = f
         return lam
 
     def increments(self, vx, vy, c, dt, out_x, out_y):
