@@ -15,7 +15,7 @@ CPU time leaves out the time the process waited for a core (not the slower cache
 is bracketed by the yardstick (``benchmarks/yardstick.py``, a fixed loop of about 1 s), and its
 wall time divided by the mean of the two yardsticks around it is printed too: a figure of the
 code that the machine's speed of the moment cancels out of (largely), comparable across days.
-``--threads`` (default 1) sets the threads of this tree's kernels (``airpuff_core/threads.py``);
+``--threads`` (default 1) sets the threads of both codes' kernels (``airpuff_core/threads.py``);
 a revision from before them runs on one thread whatever it says.  ``--set NAME=VALUE``
 (repeatable) sets a numeric run parameter of both codes' runs, e.g. ``--set
 hyperviscosity_divergence=0.5``; ``--new-set NAME=VALUE`` one of this tree's runs only, e.g. an
@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import inspect
 import io
 import json
 import statistics
@@ -73,8 +74,10 @@ def compare_runs(old, resolution, repeat, threads=1, model="paper", settings=Non
     walls = {"old": [], "new": []}
     cpus = {"old": [], "new": []}
     ratios = {"old": [], "new": []}  # wall time / yardstick
-    # this tree's runs on ``threads`` threads; an older revision's on one, whatever it says
-    options = {old: {}, new: {"threads": threads}}
+    # both codes' runs on ``threads`` threads; a revision from before the thread setting on one,
+    # whatever it says (one that has it would take all cores without it)
+    has_threads = "threads" in inspect.signature(old.simulate).parameters
+    options = {old: {"threads": threads} if has_threads else {}, new: {"threads": threads}}
     run_settings = {old: settings, new: {**settings, **(new_settings or {})}}
     for pkg in (old, new):
         pkg.simulate(pkg.RunParams(resolution=resolution, model=model, **run_settings[pkg],
