@@ -21,7 +21,7 @@ D is assembled as a sparse matrix from the pair weights of the solver's own deri
 at each operator build, and used until the next (as the hyperviscosity's Brookshaw lists are).
 The term is stiff (its rate grows like c / h); it is integrated over the fluid step by
 forward-Euler sub-steps within HV_SAFETY / HV_MARGIN of its spectral radius, which a power
-iteration gives at each build.  The products with D and D^T are compiled
+iteration gives at each build (from the last build's vector after the first).  The products with D and D^T are compiled
 (``kernels/divergence_damping.py``, the same sums as ``scipy.sparse``'s).
 """
 
