@@ -2,7 +2,7 @@
 acts only on its compressive part (docs/model.md section 4, "A stabilisation whose effect does
 not grow with c").
 
-    dv/dt += -W^-1 D^T S W D v,   S = diag(gamma_div c h),
+    dv/dt += -W^-1 D^T S W D v,   S = diag(gamma_div c_d h),
 
 with D the discrete axisymmetric divergence of the solver, (D v)_i = (v_x)_x + (v_y)_y + v_x/x
 at node i (MFPM derivatives, the axis limit 2 (v_x)_x + (v_y)_y), W = diag(W_i) the weights of
@@ -12,10 +12,15 @@ to the velocity components that are not Dirichlet values (walls, cornea, v_x on 
 them it is -W_f^-1 D_f^T S W D v with D_f the free columns of D: its linear part is symmetric
 and negative semi-definite in the W-inner product, <v, W dv/dt> = -(D v)^T S W (D v) <= 0, and
 it annihilates every velocity field whose discrete divergence vanishes.  It is a bulk viscosity
-gamma_div c h on the divergence: on an acoustic mode of wavenumber k it damps at a rate of about
-gamma_div c h k^2, the same fraction gamma_div h k of the mode's frequency c k at every c, while
-on the flow of the incompressible limit, whose divergence falls like 1/c^2 (D rho / Dt = -rho
-div v, rho - rho0 ~ p / c^2), its force falls like 1/c.
+gamma_div c_d h on the divergence, with c_d the sound speed c or a fixed speed
+(``hyperviscosity_divergence_speed``).  With c_d = c it damps an acoustic mode of wavenumber k
+at a rate of about gamma_div c h k^2, the same fraction gamma_div h k of the mode's frequency
+c k at every c.  The smooth flow's discrete divergence, though, is not only its compressible
+part, which falls like 1/c^2 (D rho / Dt = -rho div v, rho - rho0 ~ p / c^2): the operator's
+truncation error on the cloud, largest at the cornea's one-sided stencils, gives it a part that
+does not depend on c, on which a bulk viscosity growing with c exerts a force growing with c.
+A fixed c_d keeps that force independent of c; the acoustic modes are then damped at a fraction
+gamma_div h k c_d / c of their frequency, which the velocity's hyperviscosity supplements.
 
 D is assembled as a sparse matrix from the pair weights of the solver's own derivative operator
 at each operator build, and used until the next (as the hyperviscosity's Brookshaw lists are).
@@ -41,10 +46,12 @@ WARM_ITERATIONS = 8  # from the last build's vector, at the later builds
 
 
 class DivergenceDamping:
-    """The divergence damping of one run (module docstring) with strength ``gamma_div`` [1]."""
+    """The divergence damping of one run (module docstring) with strength ``gamma_div`` [1] and
+    speed ``speed`` c_d [m/s] (0: the sound speed c)."""
 
-    def __init__(self, gamma_div, h, pinned_vx, pinned_vy):
+    def __init__(self, gamma_div, speed, h, pinned_vx, pinned_vy):
         self.gamma_div = gamma_div
+        self.speed = speed
         self.h = h
         self.free_x = ~pinned_vx
         self.free_y = ~pinned_vy
@@ -123,10 +130,11 @@ class DivergenceDamping:
         return lam
 
     def increments(self, vx, vy, c, dt, out_x, out_y):
-        """The change of v_x, v_y [m/s] over dt [s] under the damping alone, by forward-Euler
-        sub-steps (module docstring), into out_x, out_y."""
-        scale = self.gamma_div * c * self.h
-        steps = max(1, math.ceil(dt * self.gamma_div * c * self.radius_unit / SAFETY))
+        """The change of v_x, v_y [m/s] over dt [s] under the damping alone at sound speed c
+        [m/s], by forward-Euler sub-steps (module docstring), into out_x, out_y."""
+        speed = self.speed if self.speed > 0 else c
+        scale = self.gamma_div * speed * self.h
+        steps = max(1, math.ceil(dt * self.gamma_div * speed * self.radius_unit / SAFETY))
         damping_increments(*self._rows, vx, vy, scale, self.weight, self.free_x, self.free_y,
                            dt / steps, steps, self._work, self._rate_work, out_x, out_y)
         return steps

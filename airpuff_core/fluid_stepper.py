@@ -150,7 +150,8 @@ class FluidStepper:
         self.hv_interval = StepInterval(hyperviscosity_interval)
         # the velocity's divergence damped (docs/model.md section 4, issue 25)
         self.divergence_damping = (
-            DivergenceDamping(si.hyperviscosity_divergence, ch.h, self.pinned_vx, self.pinned_vy)
+            DivergenceDamping(si.hyperviscosity_divergence, si.hyperviscosity_divergence_speed,
+                              ch.h, self.pinned_vx, self.pinned_vy)
             if si.hyperviscosity_divergence > 0 else None)
         self._div_increments = (np.empty(n), np.empty(n))
         # node shifting towards a regular cloud (``kernels/shifting.py``; 0: off)

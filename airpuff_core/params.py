@@ -64,6 +64,7 @@ PRESTRETCH_MAX = 10.0
 # model does not need them (its metrics do not move with c) and keeps its published numerics.
 SOUND_SPEED_OPTIONS: dict[str, float] = {
     "hyperviscosity_speed": 15.0, "hyperviscosity_divergence": 0.5,
+    "hyperviscosity_divergence_speed": 15.0,
     "hyperviscosity_density_speed": 10.0, "node_shifting": 1.0,
     "wall_drift_feedforward": 0.1, "wall_give_speed": 15.0,
 }
@@ -223,8 +224,13 @@ PARAMETERS: dict[str, ParamSpec] = {
            "section 4); set by the model preset (paper 0, clinical 10)", low_inc=True),
         _p("hyperviscosity_divergence", "1", 0.0, 0.0, 10.0,
            "strength gamma_div of the damping of the velocity's divergence, a bulk viscosity "
-           "gamma_div c h (0 switches it off; docs/model.md section 4); set by the "
+           "gamma_div c_d h (0 switches it off; docs/model.md section 4); set by the "
            "model preset (paper 0, clinical 0.5)", low_inc=True),
+        _p("hyperviscosity_divergence_speed", "m/s", 0.0, 0.0, 1500.0,
+           "speed c_d in the divergence damping's bulk viscosity gamma_div c_d h, in place of "
+           "the sound speed c: the smooth flow's discrete divergence has a part that does not "
+           "fall with c, on which a bulk viscosity growing with c would act (0: c; docs/model.md "
+           "section 4); set by the model preset (paper 0, clinical 15)", low_inc=True),
         _p("node_shifting", "1", 0.0, 0.0, 100.0,
            "strength A of the shifting of the fluid nodes towards a regular cloud, each step by "
            "-A h (v_max dt) (grad C - grad C0), C the nodes' kernel-sum concentration (0: off; "

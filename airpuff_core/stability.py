@@ -179,7 +179,7 @@ def acoustic_self_coupling(model: CoupledModel) -> np.ndarray:
     fluid = model.fluid
     ops = fluid.ops_n
     n = model.chamber.n
-    divergence = DivergenceDamping(1.0, model.chamber.h, fluid.pinned_vx, fluid.pinned_vy)
+    divergence = DivergenceDamping(1.0, 0.0, model.chamber.h, fluid.pinned_vx, fluid.pinned_vy)
     divergence.assemble(ops, fluid.x, ops.adjoint_weight)
     start, nbr, count, weights = ops.start, ops.nbr, ops.count, ops.lap_w
     rows = np.repeat(np.arange(n), count)

@@ -33,7 +33,7 @@ def _scatter_row(indptr, indices, data, i, r, scatter):
 @njit(cache=True)
 def damping_rate(indptr, indices, data, vx, vy, scale, weight, free_x, free_y, work, out_x,
                  out_y):
-    """out = -W_f^-1 D_f^T S W D v [m/s^2]: r = (S W)(D v) with S = ``scale`` (gamma_div c h per
+    """out = -W_f^-1 D_f^T S W D v [m/s^2]: r = (S W)(D v) with S = ``scale`` (gamma_div c_d h per
     node [m/s]) and W = ``weight`` (node areas, halved on the axis [m^2]), g = D^T r, and
     out_x,i = -g_i / W_i where ``free_x`` (else 0), out_y,i = -g_{n+i} / W_i where ``free_y``.
     ``work``: scratch (2, 2n).

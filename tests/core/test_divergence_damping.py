@@ -99,6 +99,28 @@ def test_the_compiled_rate_is_scipys_products_bit_for_bit(model):
         assert np.array_equal(out_y, np.where(damping.free_y, -g[n:] / damping.weight, 0.0))
 
 
+def test_a_fixed_speed_takes_the_sound_speeds_place(model):
+    """With ``hyperviscosity_divergence_speed`` c_d the bulk viscosity is gamma_div c_d h at every
+    sound speed c: the increments at any c equal those of c_d in place of c."""
+    damping = model.fluid.divergence_damping
+    n = model.x.size
+    rng = np.random.default_rng(3)
+    vx, vy = 1e-2 * rng.standard_normal(n), 1e-2 * rng.standard_normal(n)  # m/s
+    dt = 2e-6  # s
+    expected_x, expected_y, out_x, out_y = (np.empty(n) for _ in range(4))
+    try:
+        damping.speed = 0.0
+        expected_steps = damping.increments(vx, vy, 15.0, dt, expected_x, expected_y)
+        damping.speed = 15.0
+        for c in (10.0, 40.0, 80.0):
+            steps = damping.increments(vx, vy, c, dt, out_x, out_y)
+            assert steps == expected_steps
+            assert np.array_equal(out_x, expected_x) and np.array_equal(out_y, expected_y)
+        assert np.abs(expected_x).max() > 0.0
+    finally:
+        damping.speed = 0.0
+
+
 def test_rest_stays_at_rest():
     params = RunParams(model="clinical", pmax=0.0, t_end=2.0, hyperviscosity_speed=15.0,
                        hyperviscosity_divergence=0.5)
@@ -108,10 +130,11 @@ def test_rest_stays_at_rest():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("c0", [10.0, 40.0])
-def test_no_growing_mode_with_the_velocity_hyperviscosity_at_a_fixed_speed(c0):
+@pytest.mark.parametrize("c0, divergence_speed", [(10.0, 0.0), (40.0, 0.0), (40.0, 15.0)])
+def test_no_growing_mode_with_the_velocity_hyperviscosity_at_a_fixed_speed(c0, divergence_speed):
     report = linearised_step(RunParams(resolution="coarse", c0=c0, hyperviscosity_speed=15.0,
-                                       hyperviscosity_divergence=0.5))
+                                       hyperviscosity_divergence=0.5,
+                                       hyperviscosity_divergence_speed=divergence_speed))
     assert report.max_growth_rate < 1.0, report.growth_rates[:5]
 
 
