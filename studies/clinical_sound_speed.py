@@ -10,7 +10,7 @@ curvature at A2 (``p2_conditioning``), and per IOP the largest change of each me
 Tolerances (docs/validation.md): P1, P2 0.2 mmHg, CH 0.3 mmHg, DA 0.01 mm.
 
 The whole matrix of issue 25 (paper resolution at IOP 10, 16, 25; fine resolution for the normal
-eye, IOP 16; c0 = 10, 20, 40 each), on two processes (the preset sets the six stabilisations
+eye, IOP 16; c0 = 10, 20, 40 each), on two processes (the preset sets the seven stabilisations
 that make it independent of c, ``SOUND_SPEED_OPTIONS`` of airpuff_core/params.py; ``--set
 NAME=0`` switches one off):
 
